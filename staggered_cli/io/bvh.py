@@ -1,0 +1,364 @@
+"""BVH reading and writing.
+
+The header is parsed here by hand and the MOTION block with numpy in float64
+(bvhio is 20x slower, keeps float32 and reformats numbers; it serves as an
+independent oracle in the tests).  Writing keeps the hierarchy, joint order,
+channel order, End Sites and the frame time as written, and prints numbers in
+the format the source used, so an unchanged round trip gives back the
+source's numbers.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+
+from ..errors import DataError
+from ..motion import BvhMotion
+from ..skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
+
+MAX_JOINTS = 10_000
+MAX_HEADER_BYTES = 16 * 1024 * 1024
+_KNOWN_CHANNELS = set(POSITION_CHANNELS) | set(ROTATION_CHANNELS)
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+
+
+def read_bvh(path: str | os.PathLike, data: bytes | None = None, name: str | None = None) -> BvhMotion:
+    """Read a BVH file (or its bytes) into a :class:`BvhMotion`.
+
+    Parameters
+    ----------
+    path : the file to read (ignored for reading when ``data`` is given).
+    data : the file's bytes, e.g. from stdin.
+    name : the name used in error messages (default: ``path``).
+
+    Raises
+    ------
+    DataError naming the file and, where it applies, the line or frame.
+    """
+    name = name or os.fspath(path)
+    if data is None:
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read()
+        except OSError as exc:
+            raise DataError(f"cannot read: {exc.strerror or exc}", name) from None
+    try:
+        return parse_bvh(data)
+    except DataError as exc:
+        raise exc.with_source(name) from None
+
+
+def parse_bvh(data: bytes) -> BvhMotion:
+    """Parse BVH bytes.  See :func:`read_bvh`."""
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise DataError("is UTF-16 encoded; BVH files are plain ASCII text (save it as UTF-8)")
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    if b"\x00" in data[:4096]:
+        raise DataError("is not a BVH file (binary data)")
+    motion_at = _find_motion(data)
+    if motion_at < 0:
+        head = data[:2048].lstrip()
+        if not head.upper().startswith(b"HIERARCHY"):
+            raise DataError("is not a BVH file (no HIERARCHY keyword)" if data.strip() else "is empty")
+        if len(data) > MAX_HEADER_BYTES:
+            raise DataError(f"has no MOTION section in its first {MAX_HEADER_BYTES // 2**20} MiB")
+        raise DataError("has no MOTION section (truncated?)")
+    if motion_at > MAX_HEADER_BYTES:
+        raise DataError(f"HIERARCHY is over {MAX_HEADER_BYTES // 2**20} MiB: not a plausible BVH header")
+    try:
+        header = data[:motion_at].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"HIERARCHY is not text (byte {exc.start})") from None
+    skeleton = _parse_hierarchy(header)
+    header_lines = header.count("\n") + header.count("\r") - header.count("\r\n")
+    channels, frame_time, frame_time_text, fmt = _parse_motion(
+        data[motion_at:], sum(len(c) for c in skeleton.channels), header_lines
+    )
+    return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt)
+
+
+def _find_motion(data: bytes) -> int:
+    m = re.search(rb"(^|[\r\n])[ \t]*MOTION[ \t]*(\r\n|\r|\n|$)", data[: MAX_HEADER_BYTES + 64])
+    return -1 if m is None else m.start() + len(m.group(1))
+
+
+def _tokens(header: str):
+    """(token, line number) pairs; braces are tokens even when glued to words."""
+    for lineno, line in enumerate(header.splitlines(), start=1):
+        for tok in line.replace("{", " { ").replace("}", " } ").split():
+            yield tok, lineno
+
+
+def _parse_hierarchy(header: str) -> Skeleton:
+    toks = list(_tokens(header))
+    lines = header.splitlines()
+    pos = 0
+
+    def take(expect: str | None = None) -> tuple[str, int]:
+        nonlocal pos
+        if pos >= len(toks):
+            raise DataError(f"HIERARCHY ends early{f' (expected {expect})' if expect else ''}")
+        tok, ln = toks[pos]
+        pos += 1
+        if expect is not None and tok.upper() != expect.upper():
+            raise DataError(f"line {ln}: expected {expect}, found {tok[:40]!r}")
+        return tok, ln
+
+    def number(ln_hint: int) -> float:
+        tok, ln = take()
+        if not _NUMBER.match(tok):
+            raise DataError(f"line {ln}: expected a number, found {tok[:40]!r}")
+        return float(tok)
+
+    take("HIERARCHY")
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[tuple[str, ...]] = []
+    end_parents: list[int] = []
+    end_offsets: list[list[float]] = []
+
+    def joint_name(ln: int) -> str:
+        # the name is the rest of the line (names may contain spaces), minus a glued brace
+        nonlocal pos
+        parts = []
+        while pos < len(toks) and toks[pos][1] == ln and toks[pos][0] != "{":
+            parts.append(toks[pos][0])
+            pos += 1
+        if not parts:
+            raise DataError(f"line {ln}: joint without a name")
+        return " ".join(parts)
+
+    def body(j: int) -> None:
+        take("{")
+        tok, ln = take("OFFSET")
+        offsets.append([number(ln) for _ in range(3)])
+        ch: tuple[str, ...] = ()
+        while True:
+            tok, ln = take()
+            key = tok.upper()
+            if key == "CHANNELS":
+                if ch:
+                    raise DataError(f"line {ln}: second CHANNELS line for joint {names[j]!r}")
+                ntok, _ = take()
+                if not ntok.isdigit() or int(ntok) > 6:
+                    raise DataError(f"line {ln}: bad channel count {ntok[:20]!r}")
+                ch = tuple(take()[0] for _ in range(int(ntok)))
+                for c in ch:
+                    if c not in _KNOWN_CHANNELS:
+                        raise DataError(f"line {ln}: unknown channel {c[:40]!r} for joint {names[j]!r}")
+                if len(set(ch)) != len(ch):
+                    raise DataError(f"line {ln}: repeated channel for joint {names[j]!r}")
+                channels[j] = ch
+            elif key == "JOINT":
+                child(j, ln)
+            elif key == "END":
+                take("Site")
+                take("{")
+                _, ln2 = take("OFFSET")
+                end_parents.append(j)
+                end_offsets.append([number(ln2) for _ in range(3)])
+                take("}")
+            elif key == "}":
+                return
+            else:
+                raise DataError(f"line {ln}: unexpected {tok[:40]!r} in joint {names[j]!r}")
+
+    def child(parent: int, ln: int) -> None:
+        name = joint_name(ln)
+        if name in names:
+            raise DataError(f"line {ln}: duplicate joint name {name!r}")
+        if len(names) >= MAX_JOINTS:
+            raise DataError(f"more than {MAX_JOINTS} joints: not a plausible skeleton")
+        names.append(name)
+        parents.append(parent)
+        channels.append(())
+        body(len(names) - 1)
+
+    # iterative driver for the roots; the recursion depth is the hierarchy depth
+    import sys
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 3 * MAX_JOINTS + 100))
+    try:
+        while pos < len(toks):
+            tok, ln = take()
+            if tok.upper() != "ROOT":
+                raise DataError(f"line {ln}: expected ROOT, found {tok[:40]!r}")
+            child(-1, ln)
+    except RecursionError:
+        raise DataError("HIERARCHY nests too deeply") from None
+    finally:
+        sys.setrecursionlimit(limit)
+    if not names:
+        raise DataError("HIERARCHY has no ROOT joint")
+    del lines
+    return Skeleton(
+        names=tuple(names),
+        parents=np.array(parents, dtype=int),
+        offsets=np.array(offsets, dtype=float).reshape(-1, 3),
+        channels=tuple(channels),
+        end_parents=np.array(end_parents, dtype=int),
+        end_offsets=np.array(end_offsets, dtype=float).reshape(-1, 3),
+    )
+
+
+_FRAMES = re.compile(rb"^\s*Frames\s*:\s*(\S+)\s*$", re.IGNORECASE)
+_FTIME = re.compile(rb"^\s*Frame\s+Time\s*:\s*(\S+)\s*$", re.IGNORECASE)
+
+
+def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.ndarray, float, str, str]:
+    # block starts at the MOTION line
+    parts = block.split(b"\n", 3)
+    if len(parts) < 3:
+        # tolerate old-Mac CR-only files
+        parts = block.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n", 3)
+    if len(parts) < 3:
+        raise DataError("MOTION section ends before 'Frames:' and 'Frame Time:' (truncated?)")
+    m_frames = _FRAMES.match(parts[1])
+    if not m_frames:
+        raise DataError(f"line {first_line + 2}: expected 'Frames: N' after MOTION")
+    m_time = _FTIME.match(parts[2])
+    if not m_time:
+        raise DataError(f"line {first_line + 3}: expected 'Frame Time: seconds'")
+    try:
+        n_frames = int(m_frames.group(1))
+    except ValueError:
+        raise DataError(f"line {first_line + 2}: frame count {m_frames.group(1)[:20].decode(errors='replace')!r} is not a whole number") from None
+    ft_text = m_time.group(1).decode("ascii", errors="replace")
+    try:
+        frame_time = float(ft_text)
+    except ValueError:
+        frame_time = float("nan")
+    if not np.isfinite(frame_time) or frame_time <= 0:
+        raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]!r} is not a positive number")
+    if n_frames <= 0:
+        raise DataError("has no motion frames (Frames: 0)")
+    body = parts[3] if len(parts) > 3 else b""
+    if n_channels == 0:
+        raise DataError("no joint has CHANNELS")
+    try:
+        text = body.decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"MOTION data is not text (byte {exc.start} of the data)") from None
+    tokens = text.split()
+    expected = n_frames * n_channels
+    if len(tokens) != expected:
+        _explain_count(text, n_frames, n_channels, first_line + 4)
+    try:
+        values = np.array(tokens, dtype=float)
+    except ValueError:
+        _explain_values(text, first_line + 4)
+        raise
+    if not np.all(np.isfinite(values)):
+        bad = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise DataError(f"frame {bad // n_channels}: value {tokens[bad]!r} is not a finite number")
+    fmt = _number_format(tokens, values)
+    if fmt.endswith("f") and not body.rstrip(b" \t").endswith((b"\n", b"\r")):
+        # no final newline and a last number shorter than all the others: cut off
+        last, decimals = tokens[-1], int(fmt[2:-1])
+        if decimals > 0 and "." not in last or "." in last and len(last) - last.index(".") - 1 < decimals:
+            raise DataError(f"frame {n_frames - 1}: the last line is cut off after {last[:20]!r} (truncated?)")
+    return values.reshape(n_frames, n_channels), frame_time, ft_text, fmt
+
+
+def _explain_count(text: str, n_frames: int, n_channels: int, first_line: int) -> None:
+    rows = [ln for ln in text.splitlines()]
+    frame = 0
+    for i, ln in enumerate(rows):
+        n = len(ln.split())
+        if n == 0:
+            continue
+        if n != n_channels:
+            raise DataError(f"line {first_line + i}: frame {frame} has {n} values, the HIERARCHY declares {n_channels} channels")
+        frame += 1
+    if frame < n_frames:
+        raise DataError(f"declares {n_frames} frames but has {frame} (truncated?)")
+    raise DataError(f"declares {n_frames} frames but has {frame}")
+
+
+def _explain_values(text: str, first_line: int) -> None:
+    for i, ln in enumerate(text.splitlines()):
+        for tok in ln.split():
+            try:
+                float(tok)
+            except ValueError:
+                raise DataError(f"line {first_line + i}: {tok[:40]!r} is not a number") from None
+
+
+def _number_format(tokens: list[str], values: np.ndarray) -> str:
+    """A printf format that reproduces every one of the file's numbers.
+
+    Fixed decimals when every value has at most that many (checked on all
+    values, vectorized), else significant digits, else full precision.
+    """
+    step = max(1, len(tokens) // 4000)
+    sample = tokens[::step]
+    decimals = max((len(t) - t.index(".") - 1 if "." in t and "e" not in t.lower() else 0) for t in sample)
+    digits = max(len(t.lower().split("e")[0].lstrip("+-").replace(".", "").lstrip("0")) for t in sample)
+    if decimals <= 12 and _whole(values * 10.0**decimals):
+        return f"%.{decimals}f"
+    nz = values[values != 0.0]
+    if digits <= 17 and _whole(nz * 10.0 ** (max(digits, 1) - 1 - np.floor(np.log10(np.abs(nz))))):
+        return f"%.{max(digits, 1)}g"
+    return "%.17g"
+
+
+def _whole(scaled: np.ndarray) -> bool:
+    # a value printed with that many digits is a whole number once scaled, up
+    # to the rounding of the scaling itself
+    return bool(np.all(np.abs(scaled - np.rint(scaled)) <= 1e-7 * np.maximum(1.0, np.abs(scaled)) + 1e-9))
+
+
+def _fmt_number(x: float) -> str:
+    s = repr(float(x))
+    return s[:-2] if s.endswith(".0") else s
+
+
+def bvh_bytes(motion: BvhMotion) -> bytes:
+    """The BVH file of ``motion`` as bytes (LF line endings)."""
+    sk = motion.skeleton
+    out: list[str] = ["HIERARCHY"]
+    ends: dict[int, list[np.ndarray]] = {}
+    for p, o in zip(sk.end_parents, sk.end_offsets, strict=True):
+        ends.setdefault(int(p), []).append(o)
+    children: dict[int, list[int]] = {}
+    for j, p in enumerate(sk.parents):
+        children.setdefault(int(p), []).append(j)
+
+    def emit(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        out.append(f"{ind}{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {sk.names[j]}")
+        out.append(f"{ind}{{")
+        out.append(f"{ind}\tOFFSET {' '.join(_fmt_number(v) for v in sk.offsets[j])}")
+        if sk.channels[j]:
+            out.append(f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
+        for c in children.get(j, []):
+            emit(c, depth + 1)
+        for o in ends.get(j, []):
+            out.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {' '.join(_fmt_number(v) for v in o)}", f"{ind}\t}}"])
+        out.append(f"{ind}}}")
+
+    for r in children.get(-1, []):
+        emit(r, 0)
+    ch = motion.channels
+    out += ["MOTION", f"Frames: {ch.shape[0]}", f"Frame Time: {motion.frame_time_text or _fmt_number(motion.frame_time)}"]
+    header = "\n".join(out) + "\n"
+    if ch.shape[0] == 0:
+        return header.encode("ascii")
+    row = " ".join([motion.number_format] * ch.shape[1]) + "\n"
+    # one % over the whole block: the fastest pure-Python formatting
+    flat = ch.ravel().tolist()
+    body = (row * ch.shape[0]) % tuple(flat)
+    return (header + body).encode("ascii")
+
+
+def write_bvh(path: str | os.PathLike, motion: BvhMotion, force: bool = True) -> None:
+    """Write ``motion`` to ``path`` atomically (temp file, then rename)."""
+    from .files import write_atomic
+
+    write_atomic(os.fspath(path), bvh_bytes(motion), force=force)

@@ -1,0 +1,201 @@
+"""Dense motion as read from files: BVH skeleton motion and C3D marker motion.
+
+These are plain values converted at the file edge (``io``): no file layout
+leaks past them.  Control variables (SPEC section 2) are derived here:
+
+* BVH: one translation variable per joint with position channels
+  (named ``JOINT.position``), one rotation variable per joint with rotation
+  channels (named ``JOINT``);
+* C3D: one translation variable per marker (named by its label).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quat
+from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton, end_site_positions, figure_height, forward_kinematics
+
+
+@dataclass(frozen=True)
+class BvhMotion:
+    """A BVH clip.
+
+    Attributes
+    ----------
+    skeleton : Skeleton
+    channels : (T, C) float64, the MOTION values exactly as in the file
+        (degrees for rotations, file units for positions).
+    frame_time : float, seconds per frame as written.
+    frame_time_text : str, the frame time token as written (kept on output).
+    number_format : str, printf format that reproduces the file's numbers.
+    """
+
+    skeleton: Skeleton
+    channels: np.ndarray
+    frame_time: float
+    frame_time_text: str = ""
+    number_format: str = "%.6f"
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.channels.shape[0])
+
+    @property
+    def rate(self) -> float:
+        """Nominal frame rate in Hz (the written frame time rounded sensibly)."""
+        return nominal_rate(self.frame_time)
+
+    def channel_slices(self) -> list[tuple[int, int]]:
+        """(start, stop) column range of each joint's channels."""
+        out, c = [], 0
+        for ch in self.skeleton.channels:
+            out.append((c, c + len(ch)))
+            c += len(ch)
+        return out
+
+    def local_rotations(self) -> np.ndarray:
+        """(T, J, 4) local rotations, w first, each joint's track unrolled."""
+        return local_rotations_from_channels(self.skeleton, self.channels)
+
+    def local_translations(self) -> np.ndarray:
+        """(T, J, 3) local translations: position channels where present, else offsets."""
+        return local_translations_from_channels(self.skeleton, self.channels)
+
+    def world(self) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations (T, J, 4) and positions (T, J, 3)."""
+        return forward_kinematics(self.skeleton, self.local_rotations(), self.local_translations())
+
+    def figure_height(self) -> float:
+        wr, wp = self.world()
+        return figure_height(self.skeleton, wp, end_site_positions(self.skeleton, wr, wp))
+
+
+@dataclass(frozen=True)
+class MarkerMotion:
+    """A C3D marker clip.
+
+    Attributes
+    ----------
+    labels : tuple of str, (M,)
+    points : (T, M, 3) float64, file units, NaN where the marker is missing.
+    rate : float, Hz.
+    units : str, e.g. ``'mm'`` (may be empty).
+    source : bytes, the original file, so that writing keeps analogs and
+        every parameter the user had.
+    """
+
+    labels: tuple[str, ...]
+    points: np.ndarray
+    rate: float
+    units: str = ""
+    source: bytes = field(default=b"", repr=False)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def frame_time(self) -> float:
+        return 1.0 / self.rate
+
+    def figure_height(self) -> float:
+        ext = np.nanmax(self.points, axis=1) - np.nanmin(self.points, axis=1)
+        ext = ext[np.all(np.isfinite(ext), axis=1)]
+        size = float(np.median(np.max(ext, axis=1))) if len(ext) else 0.0
+        return size if size > 0 else 1.0
+
+
+def nominal_rate(frame_time: float) -> float:
+    """Frame rate in Hz, snapped to a whole number when the written frame time
+    is a rounded reciprocal of one (``.0083333`` -> 120, ``0.016667`` -> 60)."""
+    if frame_time <= 0:
+        return 0.0
+    rate = 1.0 / frame_time
+    whole = round(rate)
+    return float(whole) if whole > 0 and abs(rate - whole) / whole < 2e-4 else rate
+
+
+def rotation_columns(skeleton: Skeleton) -> list[tuple[int, list[int], str]]:
+    """For each joint with rotation channels: (joint, its 3 columns, Euler order)."""
+    out, c = [], 0
+    for j, ch in enumerate(skeleton.channels):
+        cols = [c + n for n, name in enumerate(ch) if name in ROTATION_CHANNELS]
+        if cols:
+            out.append((j, cols, skeleton.rotation_order(j)))
+        c += len(ch)
+    return out
+
+
+def position_columns(skeleton: Skeleton) -> list[tuple[int, list[int]]]:
+    """For each joint with position channels: (joint, columns ordered x, y, z).
+
+    A joint with only some of the three position channels keeps its offset
+    in the others; its missing columns are given as -1.
+    """
+    out, c = [], 0
+    for j, ch in enumerate(skeleton.channels):
+        cols = [c + ch.index(name) if name in ch else -1 for name in POSITION_CHANNELS]
+        if any(x >= 0 for x in cols):
+            out.append((j, cols))
+        c += len(ch)
+    return out
+
+
+def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    T = channels.shape[0]
+    rot = quat.identity((T, skeleton.n_joints))
+    for j, cols, order in rotation_columns(skeleton):
+        if len(order) == 3:
+            rot[:, j] = quat.from_euler(channels[:, cols], order)
+        else:  # one or two rotation channels: compose what is there
+            q = quat.identity((T,))
+            for col, axis in zip(cols, order, strict=True):
+                q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[:, col])))
+            rot[:, j] = q
+    return quat.unroll(rot, axis=0)
+
+
+def local_translations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    T = channels.shape[0]
+    tr = np.broadcast_to(skeleton.offsets, (T, skeleton.n_joints, 3)).copy()
+    for j, cols in position_columns(skeleton):
+        for axis, col in enumerate(cols):
+            if col >= 0:
+                tr[:, j, axis] = channels[:, col]
+    return tr
+
+
+def channels_from_local(
+    skeleton: Skeleton,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    reference: np.ndarray,
+) -> np.ndarray:
+    """BVH channel values (T, C) of local rotations and translations.
+
+    Each joint is written in its own Euler order; among equivalent angle
+    triples the one closest to ``reference`` (T, C) is chosen (SPEC section 2).
+    """
+    out = np.array(reference, dtype=float, copy=True)
+    for j, cols, order in rotation_columns(skeleton):
+        if len(order) == 3:
+            out[:, cols] = quat.to_euler(rotations[:, j], order, reference[:, cols])
+        else:
+            # fewer than three rotation channels: only exact for rotations
+            # about those axes; take the angle about the single axis
+            if len(order) == 1:
+                ax = "XYZ".index(order[0])
+                r = quat.log(rotations[:, j])[:, ax]
+                ang = np.degrees(r)
+                out[:, cols[0]] = ang + 360.0 * np.round((reference[:, cols[0]] - ang) / 360.0)
+            else:
+                full = quat.to_euler(rotations[:, j], order + ("XYZ".replace(order[0], "").replace(order[1], "")))
+                out[:, cols] = full[:, :2]
+    for j, cols in position_columns(skeleton):
+        for axis, col in enumerate(cols):
+            if col >= 0:
+                out[:, col] = translations[:, j, axis]
+    return out

@@ -1,0 +1,250 @@
+"""Quaternion algebra on stacks of quaternions.
+
+Every quaternion in this project is a float64 array whose last axis holds
+``(w, x, y, z)`` (w first), combined with the Hamilton product.  All functions
+broadcast over leading axes and never mutate their inputs.
+
+The paper's operators (SPEC section 2) for rotations are
+
+* ``a ⊕ b = a * b``  (b applied after a, in a's local frame),
+* ``c ⊖ a = a⁻¹ * c`` so that ``a ⊕ (c ⊖ a) = c``,
+* scaling by a weight ``w`` is ``exp(w · log(q))``.
+
+``log`` and ``exp`` here map between unit quaternions and rotation vectors
+(axis times angle, radians), so ``exp(log(q)) == q`` for ``q.w >= 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+def identity(shape: tuple[int, ...] = ()) -> np.ndarray:
+    """Identity quaternions of ``shape + (4,)``."""
+    q = np.zeros(tuple(shape) + (4,))
+    q[..., 0] = 1.0
+    return q
+
+
+def normalize(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions, shape preserved."""
+    q = np.asarray(q, dtype=float)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate, which is the inverse of a unit quaternion."""
+    q = np.asarray(q, dtype=float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+inv = conj
+
+
+def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` of ``(..., 4)`` arrays (broadcasting)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def mul_vec(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v (..., 3)`` by unit quaternions ``q (..., 4)``."""
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def log(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(..., 3)`` (radians) of unit quaternions.
+
+    ``q`` and ``-q`` give the same rotation; the shorter one (w >= 0) is used.
+    """
+    q = np.asarray(q, dtype=float)
+    q = np.where(q[..., :1] < 0.0, -q, q)
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    half = np.arctan2(s, q[..., 0])
+    # 2*half/s -> 2 as s -> 0 (use the series to stay accurate for tiny angles)
+    small = s < 1e-8
+    scale = np.where(small, 2.0 / np.maximum(q[..., 0], _EPS), 2.0 * half / np.where(small, 1.0, s))
+    return v * scale[..., None]
+
+
+def exp(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions of rotation vectors ``r (..., 3)`` (radians)."""
+    r = np.asarray(r, dtype=float)
+    angle = np.linalg.norm(r, axis=-1)
+    half = 0.5 * angle
+    small = angle < 1e-8
+    # sin(half)/angle -> 0.5 - angle**2/48 as angle -> 0
+    k = np.where(small, 0.5 - angle**2 / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+
+
+def angle(q: np.ndarray) -> np.ndarray:
+    """Rotation angle in radians, in [0, pi], of unit quaternions."""
+    q = np.asarray(q, dtype=float)
+    return 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle in radians of the rotation that takes ``a`` to ``b`` (sign-blind)."""
+    return angle(mul(conj(a), b))
+
+
+def slerp(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation along the shorter arc.
+
+    ``u`` broadcasts against the leading axes of ``a`` and ``b``.
+    """
+    a = np.asarray(a, dtype=float)
+    d = mul(conj(a), b)
+    d = np.where(d[..., :1] < 0.0, -d, d)
+    u = np.asarray(u, dtype=float)
+    return mul(a, exp(log(d) * u[..., None]))
+
+
+def pow(q: np.ndarray, w: np.ndarray | float) -> np.ndarray:  # noqa: A001 - the math name
+    """Scale a rotation: ``exp(w · log(q))``."""
+    w = np.asarray(w, dtype=float)
+    return exp(log(q) * w[..., None] if w.ndim else log(q) * float(w))
+
+
+def oplus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a ⊕ b = a * b`` for rotations."""
+    return mul(a, b)
+
+
+def ominus(c: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """``c ⊖ a = a⁻¹ * c`` for rotations, so that ``a ⊕ (c ⊖ a) = c``."""
+    return mul(conj(a), c)
+
+
+def unroll(q: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Flip signs along ``axis`` so that consecutive quaternions have dot >= 0."""
+    q = np.moveaxis(np.array(q, dtype=float), axis, 0)
+    if q.shape[0] > 1:
+        dots = np.sum(q[1:] * q[:-1], axis=-1)
+        flips = np.cumsum(dots < 0.0, axis=0) % 2
+        sign = np.concatenate([np.ones((1,) + flips.shape[1:]), 1.0 - 2.0 * flips], axis=0)
+        q = q * sign[..., None]
+    return np.moveaxis(q, 0, axis)
+
+
+def hemisphere(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """``q`` or ``-q``, whichever lies on the hemisphere of ``ref``."""
+    q = np.asarray(q, dtype=float)
+    return np.where(np.sum(q * ref, axis=-1, keepdims=True) < 0.0, -q, q)
+
+
+_AXIS = {"X": 0, "Y": 1, "Z": 2}
+
+
+def from_axis_angle(axis: str, angle_rad: np.ndarray) -> np.ndarray:
+    """Rotations about a principal axis ``'X'``, ``'Y'`` or ``'Z'``."""
+    angle_rad = np.asarray(angle_rad, dtype=float)
+    q = np.zeros(angle_rad.shape + (4,))
+    q[..., 0] = np.cos(0.5 * angle_rad)
+    q[..., 1 + _AXIS[axis]] = np.sin(0.5 * angle_rad)
+    return q
+
+
+def from_euler(angles_deg: np.ndarray, order: str) -> np.ndarray:
+    """Quaternions of intrinsic Euler angles (BVH convention).
+
+    Parameters
+    ----------
+    angles_deg : (..., 3) array
+        Angles in degrees, in the order the axes are listed in ``order``.
+    order : str
+        Three distinct axes, e.g. ``'ZXY'``: the first listed is the outermost
+        rotation, ``q = q_Z(a0) * q_X(a1) * q_Y(a2)``.
+    """
+    a = np.radians(np.asarray(angles_deg, dtype=float))
+    q = from_axis_angle(order[0], a[..., 0])
+    q = mul(q, from_axis_angle(order[1], a[..., 1]))
+    return mul(q, from_axis_angle(order[2], a[..., 2]))
+
+
+def _matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = (q[..., i] for i in range(4))
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of unit quaternions."""
+    return _matrix(normalize(q))
+
+
+def to_euler(q: np.ndarray, order: str, reference_deg: np.ndarray | None = None) -> np.ndarray:
+    """Intrinsic Euler angles in degrees, closest to a reference.
+
+    Among the equivalent triples (whole turns, and the twin
+    ``(a+180, 180-b, c+180)``) the one closest to ``reference_deg`` is
+    returned; without a reference, the principal one (middle angle in
+    [-90, 90]).  Near gimbal lock, where only the sum or difference of the
+    outer angles is determined, the first angle is taken from the reference.
+
+    Parameters
+    ----------
+    q : (..., 4) array, w first.
+    order : str, three distinct axes, first listed outermost.
+    reference_deg : (..., 3) array or None.
+    """
+    q = normalize(q)
+    i, j, k = (_AXIS[c] for c in order)
+    m = _matrix(q)
+    # R = R_i(a) R_j(b) R_k(c); parity sign of the axis permutation
+    sign = 1.0 if (j - i) % 3 == 1 else -1.0
+    sb = np.clip(sign * m[..., i, k], -1.0, 1.0)
+    # cos(b) from the other entries of the row keeps b accurate near +-90 deg
+    cb = np.hypot(m[..., i, i], m[..., i, j])
+    b = np.arctan2(sb, cb)
+    a = np.arctan2(-sign * m[..., j, k], m[..., k, k])
+    c = np.arctan2(-sign * m[..., i, j], m[..., i, i])
+    # cos(b) below ~1e-7 means the outer angles are numerically undetermined
+    locked = cb < 1e-7
+    # at lock, R_i(a) R_j(±90) R_k(c) depends on a ± c only: read it off the
+    # remaining block and split it with the reference (or a = 0)
+    if np.any(locked):
+        # keep a from the reference (or 0) and solve c from what is left:
+        # R_k(c) = R_j(b)^-1 R_i(a)^-1 R
+        a_l = np.radians(reference_deg[..., 0]) if reference_deg is not None else np.zeros_like(a)
+        rest = mul(conj(mul(from_axis_angle(order[0], a_l), from_axis_angle(order[1], b))), q)
+        c_l = 2.0 * np.arctan2(rest[..., 1 + k], rest[..., 0])
+        a = np.where(locked, a_l, a)
+        c = np.where(locked, c_l, c)
+    out = np.degrees(np.stack([a, b, c], axis=-1))
+    if reference_deg is None:
+        return out
+    ref = np.asarray(reference_deg, dtype=float)
+    twin = out + np.array([180.0, 0.0, 180.0])
+    twin[..., 1] = 180.0 - out[..., 1]
+    cands = np.stack([out, twin], axis=0)
+    cands = cands + 360.0 * np.round((ref - cands) / 360.0)
+    dist = np.sum((cands - ref) ** 2, axis=-1)
+    pick = np.argmin(dist, axis=0)
+    return np.where(pick[..., None] == 0, cands[0], cands[1])

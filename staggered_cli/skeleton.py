@@ -1,0 +1,151 @@
+"""Skeletons: names, parents, offsets and channel layout; forward kinematics.
+
+A skeleton is parallel per-joint arrays in parent-before-child order (the
+order joints appear in the BVH HIERARCHY).  Forward kinematics loops over
+joints, never over frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quat
+from .errors import UsageError
+
+ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
+POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """A joint hierarchy.
+
+    Attributes
+    ----------
+    names : tuple of str, (J,)
+    parents : (J,) int array, -1 for the root.  Parents come before children.
+    offsets : (J, 3) float array, file units, relative to the parent.
+    channels : tuple of tuple of str
+        Per joint, the BVH channel names in file order (may be empty).
+    end_sites : (E,) int array and (E, 3) offsets
+        ``end_parents[e]`` is the joint an End Site hangs from.
+    """
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    channels: tuple[tuple[str, ...], ...]
+    end_parents: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    end_offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        """Index of joint ``name``; ``UsageError`` listing a few names if unknown."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise UsageError(
+                f"unknown joint {name!r} (joints: {', '.join(self.names[:8])}"
+                f"{', ...' if len(self.names) > 8 else ''})"
+            ) from None
+
+    def rotation_order(self, j: int) -> str:
+        """Euler order of joint ``j`` as axis letters, e.g. ``'ZXY'`` ('' if none)."""
+        return "".join(c[0] for c in self.channels[j] if c in ROTATION_CHANNELS)
+
+    def has_position(self, j: int) -> bool:
+        return any(c in POSITION_CHANNELS for c in self.channels[j])
+
+    def has_rotation(self, j: int) -> bool:
+        return len(self.rotation_order(j)) > 0
+
+    def children(self, j: int) -> np.ndarray:
+        return np.flatnonzero(self.parents == j)
+
+    def depth_below(self, j: int) -> np.ndarray:
+        """Depth of every joint below ``j`` (0 at ``j``), -1 outside its subtree."""
+        depth = np.full(self.n_joints, -1, dtype=int)
+        depth[j] = 0
+        for c in range(j + 1, self.n_joints):
+            p = self.parents[c]
+            if p >= 0 and depth[p] >= 0:
+                depth[c] = depth[p] + 1
+        return depth
+
+    def subtree(self, j: int) -> np.ndarray:
+        """Indices of ``j`` and all its descendants."""
+        return np.flatnonzero(self.depth_below(j) >= 0)
+
+    def tips(self, j: int) -> np.ndarray:
+        """Local offsets (n, 3) from joint ``j`` to its children and end sites."""
+        kids = [self.offsets[c] for c in self.children(j)]
+        kids += [o for p, o in zip(self.end_parents, self.end_offsets, strict=True) if p == j]
+        return np.array(kids, dtype=float).reshape(-1, 3)
+
+
+def forward_kinematics(
+    skeleton: Skeleton, rotations: np.ndarray, translations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations and positions of every joint.
+
+    Parameters
+    ----------
+    rotations : (T, J, 4) local rotations, w first.
+    translations : (T, J, 3) local translations (the offset, or the position
+        channels where a joint has them), file units.
+
+    Returns
+    -------
+    world_rot : (T, J, 4); world_pos : (T, J, 3), file units.
+    """
+    T, J = rotations.shape[:2]
+    world_rot = np.empty((T, J, 4))
+    world_pos = np.empty((T, J, 3))
+    for j in range(J):
+        p = skeleton.parents[j]
+        if p < 0:
+            world_rot[:, j] = rotations[:, j]
+            world_pos[:, j] = translations[:, j]
+        else:
+            world_rot[:, j] = quat.mul(world_rot[:, p], rotations[:, j])
+            world_pos[:, j] = world_pos[:, p] + quat.mul_vec(world_rot[:, p], translations[:, j])
+    return world_rot, world_pos
+
+
+def end_site_positions(skeleton: Skeleton, world_rot: np.ndarray, world_pos: np.ndarray) -> np.ndarray:
+    """World positions ``(T, E, 3)`` of the End Sites."""
+    p = skeleton.end_parents
+    return world_pos[:, p] + quat.mul_vec(world_rot[:, p], skeleton.end_offsets[None])
+
+
+def body_joints(skeleton: Skeleton) -> np.ndarray:
+    """Joints of the body proper: the subtree of the first joint below the
+    root that branches.  Skips a static placeholder root (Bandai's
+    ``joint_Root`` at the origin while ``Hips`` carries the translation)."""
+    j = int(np.flatnonzero(skeleton.parents < 0)[0])
+    while len(skeleton.children(j)) == 1:
+        j = int(skeleton.children(j)[0])
+    return skeleton.subtree(j) if len(skeleton.children(j)) else np.arange(skeleton.n_joints)
+
+
+def figure_height(skeleton: Skeleton, world_pos: np.ndarray, end_pos: np.ndarray | None = None) -> float:
+    """Size of the figure in file units.
+
+    The median over frames of the largest side of the body's bounding box
+    (joints of :func:`body_joints` and their End Sites): independent of the up
+    axis and of units, and not fooled by a crouch or a T-pose frame.
+    """
+    body = body_joints(skeleton)
+    pts = world_pos[:, body]
+    if end_pos is not None and end_pos.shape[1]:
+        pts = np.concatenate([pts, end_pos[:, np.isin(skeleton.end_parents, body)]], axis=1)
+    ext = np.max(pts, axis=1) - np.min(pts, axis=1)  # (T, 3)
+    size = float(np.median(np.max(ext, axis=1)))
+    if not np.isfinite(size) or size <= 0:
+        size = float(np.sum(np.linalg.norm(skeleton.offsets, axis=1))) or 1.0
+    return size

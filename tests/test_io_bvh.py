@@ -1,0 +1,157 @@
+"""BVH reading and writing on every real file of ../shared/mocap."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from staggered_cli import quat
+from staggered_cli.errors import DataError
+from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
+from staggered_cli.motion import channels_from_local
+
+from .conftest import BVH_FILES, mocap
+
+pytestmark = pytest.mark.skipif(not BVH_FILES, reason="../shared/mocap is missing")
+
+
+@pytest.fixture(scope="module", params=BVH_FILES)
+def motion(request):
+    return request.param, read_bvh(mocap(request.param))
+
+
+def test_round_trip_is_exact(motion):
+    name, m = motion
+    back = parse_bvh(bvh_bytes(m))
+    assert back.skeleton.names == m.skeleton.names
+    assert back.skeleton.channels == m.skeleton.channels
+    np.testing.assert_array_equal(back.skeleton.offsets, m.skeleton.offsets)
+    np.testing.assert_array_equal(back.skeleton.end_offsets, m.skeleton.end_offsets)
+    np.testing.assert_array_equal(back.channels, m.channels)  # the source's numbers, to the bit
+    assert back.frame_time_text == m.frame_time_text
+
+
+def test_written_numbers_equal_the_source_text(motion):
+    name, m = motion
+    src = mocap(name).read_bytes().replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    out = bvh_bytes(m)
+    src_rows = src[src.index(b"MOTION") :].split(b"\n")[3:]
+    out_rows = out[out.index(b"MOTION") :].split(b"\n")[3:]
+    src_rows = [r.split() for r in src_rows if r.strip()]
+    out_rows = [r.split() for r in out_rows if r.strip()]
+    assert len(src_rows) == len(out_rows) == m.n_frames
+    # equal to the precision the source is written in: as numbers, exactly
+    for a, b in zip(src_rows[:: max(1, len(src_rows) // 50)], out_rows[:: max(1, len(src_rows) // 50)], strict=True):
+        assert [float(x) for x in a] == [float(x) for x in b]
+
+
+def test_euler_round_trip_through_quaternions(motion):
+    """channels -> quaternions -> channels with the source as reference gives the source."""
+    name, m = motion
+    rot = m.local_rotations()
+    tr = m.local_translations()
+    back = channels_from_local(m.skeleton, rot, tr, m.channels)
+    assert np.abs(back - m.channels).max() < 1e-6
+    wr, wp = m.world()
+    from staggered_cli.motion import local_rotations_from_channels
+    from staggered_cli.skeleton import forward_kinematics
+
+    wr2, wp2 = forward_kinematics(m.skeleton, local_rotations_from_channels(m.skeleton, back), tr)
+    assert np.abs(wp2 - wp).max() < 1e-6 * m.figure_height()
+
+
+def test_quaternions_agree_with_bvhio(motion):
+    bvhio = pytest.importorskip("bvhio")
+    name, m = motion
+    root = bvhio.readAsBvh(str(mocap(name))).Root
+    ours = m.local_rotations()
+    frames = np.linspace(0, m.n_frames - 1, min(m.n_frames, 25)).astype(int)
+    worst = 0.0
+    stack = [root]
+    while stack:
+        joint = stack.pop()
+        stack.extend(joint.Children)
+        j = m.skeleton.index(joint.Name)
+        if not m.skeleton.has_rotation(j):
+            continue
+        theirs = np.array([[k.Rotation.w, k.Rotation.x, k.Rotation.y, k.Rotation.z] for k in (joint.Keyframes[f] for f in frames)])
+        worst = max(worst, float(np.degrees(quat.angle_between(quat.normalize(theirs), ours[frames, j])).max()))
+    assert worst < 1e-4
+
+
+def test_mixed_euler_orders_are_kept():
+    m = read_bvh(mocap("cmu3dsmax_131_02_start_walk_stop.bvh"))
+    orders = {m.skeleton.rotation_order(j) for j in range(m.skeleton.n_joints) if m.skeleton.has_rotation(j)}
+    assert orders == {"ZYX", "ZXY"}
+
+
+def test_known_facts_of_the_files():
+    m = read_bvh(mocap("cmu_01_01_forward_jumps.bvh"))
+    assert (m.n_frames, m.skeleton.n_joints, m.rate, m.frame_time_text) == (2752, 31, 120.0, ".0083333")
+    b = read_bvh(mocap("bandai1_walk_normal_001.bvh"))
+    assert b.skeleton.names[0] == "joint_Root" and all(len(c) == 6 for c in b.skeleton.channels)
+    assert b.rate == 30.0 and b.n_frames == 195
+    g = read_bvh(mocap("games105_idle.bvh"))
+    assert g.rate == 60.0 and g.skeleton.rotation_order(0) == "XYZ"
+    assert 1.3 < g.figure_height() < 2.0  # metres
+    assert 20 < m.figure_height() < 35  # CMU units of 5.64 cm
+
+
+def test_gimbal_lock_has_no_flips():
+    """cmu_115_06 bends over through Hips Y = 88 deg: writing an edited motion
+    (no reference at the same time) follows the previous frame without jumps."""
+    m = read_bvh(mocap("cmu_115_06_pick_up_box.bvh"))
+    rot = m.local_rotations()
+    # a reference far from the source: the principal triples, then unwrap by the previous frame
+    ref = np.zeros_like(m.channels)
+    back = channels_from_local(m.skeleton, rot, m.local_translations(), ref)
+    # whatever the branch, re-reading gives the same rotations
+    from staggered_cli.motion import local_rotations_from_channels
+
+    again = local_rotations_from_channels(m.skeleton, back)
+    assert np.degrees(quat.angle_between(again, rot)).max() < 1e-6
+    with_source = channels_from_local(m.skeleton, rot, m.local_translations(), m.channels)
+    assert np.abs(np.diff(with_source, axis=0)).max() == pytest.approx(np.abs(np.diff(m.channels, axis=0)).max(), abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (b"", "is empty"),
+        (b"hello world\n", "not a BVH"),
+        (b"\xff\xfeH\x00I\x00", "UTF-16"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\n", "no MOTION"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n", "declares 2 frames but has 1"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n1 2\n", "frame 1 has 2 values"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Wposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n", "unknown channel"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 nan 3\n", "not a finite number"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 x 3\n", "'x' is not a number"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n", "ends early"),
+        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 100000000\nFrame Time: 0.1\n1 2 3\n", "declares 100000000 frames but has 1"),
+    ],
+)
+def test_malformed_input_names_the_file(text, message, tmp_path):
+    path = tmp_path / "bad.bvh"
+    path.write_bytes(text)
+    with pytest.raises(DataError) as err:
+        read_bvh(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_truncated_real_file_fails_cleanly(tmp_path):
+    data = mocap("cmu_02_01_walk.bvh").read_bytes()
+    for cut in (10, 500, len(data) // 3, len(data) - 7):
+        path = tmp_path / f"cut{cut}.bvh"
+        path.write_bytes(data[:cut])
+        with pytest.raises(DataError):
+            read_bvh(path)
+
+
+def test_crlf_tabs_and_bom_parse_the_same():
+    text = mocap("games105_idle.bvh").read_bytes()
+    a = parse_bvh(text)
+    b = parse_bvh(b"\xef\xbb\xbf" + text.replace(b"\r\n", b"\n").replace(b"  ", b"\t"))
+    np.testing.assert_array_equal(a.channels, b.channels)
+    assert a.skeleton.names == b.skeleton.names
