@@ -102,8 +102,13 @@ class MarkerMotion:
         return 1.0 / self.rate
 
     def figure_height(self) -> float:
-        ext = np.nanmax(self.points, axis=1) - np.nanmin(self.points, axis=1)
-        ext = ext[np.all(np.isfinite(ext), axis=1)]
+        seen = np.all(np.isfinite(self.points), axis=2)  # (T, M)
+        frames = np.flatnonzero(seen.sum(axis=1) >= 2)
+        if len(frames) == 0:
+            return 1.0
+        pts = np.where(seen[frames, :, None], self.points[frames], np.nan)
+        with np.errstate(invalid="ignore"):
+            ext = np.fmax.reduce(pts, axis=1) - np.fmin.reduce(pts, axis=1)
         size = float(np.median(np.max(ext, axis=1))) if len(ext) else 0.0
         return size if size > 0 else 1.0
 

@@ -1,0 +1,505 @@
+"""The staggered-pose document: poses, tracks, constraints and the source.
+
+A :class:`Document` is the in-memory value every subcommand reads and writes.
+It keeps the source motion it came from (BVH skeleton and channel values,
+or the C3D clip) so that baking writes the source's layout and, for BVH, can
+pick Euler triples on the source's branch (SPEC section 2).
+
+Control variables are ordered translations first, then rotations; this
+global order is the second axis of refinement arrays ``(K, V)``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import quat
+from .errors import DataError, UsageError
+from .motion import BvhMotion, MarkerMotion, local_rotations_from_channels, local_translations_from_channels, position_columns, rotation_columns
+from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
+
+FORMAT_NAME = "staggered-poses"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """A contact: ``joint`` (joint name or marker label) is planted from
+    ``start`` to ``end`` seconds (inclusive)."""
+
+    joint: str
+    start: float
+    end: float
+
+
+@dataclass(frozen=True)
+class Document:
+    """A staggered-pose document.
+
+    Attributes
+    ----------
+    pose_t : (K,) strictly increasing pose times, seconds; the first and last
+        frame always carry a pose.
+    priority : (K,) pose priorities ``P(t_k)(t_{k+1} - t_{k-1})``
+        (infinite for the first and last pose, which culling always keeps).
+    tracks : translation track, then rotation track (C3D: translation only).
+    constraints : contact constraints, by joint or marker name.
+    signals : arrays kept for pictures (``'P'`` (T,), ``'p'`` (T, V)).
+    parameters : what produced the document (extract options), JSON-able.
+    source : the source clip, a BvhMotion or a MarkerMotion.
+    source_name, source_sha256 : where it came from.
+    """
+
+    pose_t: np.ndarray
+    priority: np.ndarray
+    tracks: tuple[Track, ...]
+    source: BvhMotion | MarkerMotion
+    source_name: str = ""
+    source_sha256: str = ""
+    constraints: tuple[Constraint, ...] = ()
+    signals: dict = field(default_factory=dict)
+    parameters: dict = field(default_factory=dict)
+
+    # -- facts --
+    @property
+    def kind(self) -> str:
+        return "bvh" if isinstance(self.source, BvhMotion) else "c3d"
+
+    @property
+    def frame_time(self) -> float:
+        return float(self.source.frame_time)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.source.n_frames)
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.pose_t)
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        return np.arange(self.n_frames) * self.frame_time
+
+    @property
+    def duration(self) -> float:
+        return (self.n_frames - 1) * self.frame_time
+
+    @property
+    def variable_names(self) -> tuple[str, ...]:
+        return tuple(n for tr in self.tracks for n in tr.names)
+
+    def variable(self, name: str) -> tuple[int, int]:
+        """(track index, variable index in that track) of a variable name."""
+        for ti, tr in enumerate(self.tracks):
+            if name in tr.names:
+                return ti, tr.names.index(name)
+        raise UsageError(f"unknown variable {name!r}")
+
+    def refinements(self) -> np.ndarray:
+        """(K, V) refinements in seconds over all variables."""
+        cols = []
+        for tr in self.tracks:
+            ext_t, _, _ = pose_arrays(tr, self.n_poses)
+            cols.append(ext_t - self.pose_t[:, None])
+        return np.concatenate(cols, axis=1) if cols else np.zeros((self.n_poses, 0))
+
+    def with_tracks(self, tracks: tuple[Track, ...], **changes) -> Document:
+        return replace(self, tracks=tuple(tracks), **changes)
+
+
+# --- from dense motion ----------------------------------------------------------
+
+
+def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]]:
+    """The control variables of a clip as (kind, names, targets, dense values (T, V, D))."""
+    if isinstance(motion, BvhMotion):
+        sk = motion.skeleton
+        rot = local_rotations_from_channels(sk, motion.channels)
+        tr = local_translations_from_channels(sk, motion.channels)
+        pos_j = [j for j, _ in position_columns(sk)]
+        rot_j = [j for j, _, _ in rotation_columns(sk)]
+        return [
+            (TRANSLATION, tuple(f"{sk.names[j]}.position" for j in pos_j), np.array(pos_j, dtype=int), tr[:, pos_j]),
+            (ROTATION, tuple(sk.names[j] for j in rot_j), np.array(rot_j, dtype=int), rot[:, rot_j]),
+        ]
+    return [(TRANSLATION, tuple(motion.labels), np.arange(len(motion.labels)), fill_gaps(motion.points))]
+
+
+def fill_gaps(points: np.ndarray) -> np.ndarray:
+    """Markers with NaN gaps filled by linear interpolation (held at the ends;
+    a marker never seen is zero).  The gaps are put back when baking."""
+    T, M, _ = points.shape
+    out = np.array(points, dtype=float, copy=True)
+    frames = np.arange(T)
+    seen = np.all(np.isfinite(out), axis=2)
+    for m in range(M):
+        ok = seen[:, m]
+        if ok.all():
+            continue
+        if not ok.any():
+            out[:, m] = 0.0
+            continue
+        for ax in range(3):
+            out[:, m, ax] = np.interp(frames, frames[ok], out[ok, m, ax])
+    return out
+
+
+def from_motion(
+    motion: BvhMotion | MarkerMotion,
+    pose_t: np.ndarray,
+    refine: np.ndarray | None = None,
+    *,
+    priority: np.ndarray | None = None,
+    source_name: str = "",
+    source_bytes: bytes | None = None,
+    constraints: tuple[Constraint, ...] = (),
+    signals: dict | None = None,
+    parameters: dict | None = None,
+) -> Document:
+    """Build a document with poses at chosen times and refinements.
+
+    Parameters
+    ----------
+    motion : the dense clip.
+    pose_t : (K,) pose times in seconds; the first and last frame are added
+        when missing.  Times are used as given (they need not be on frames).
+    refine : (K, V) refinements in seconds over all variables (translations
+        first, then rotations); zero by default.  The first and last poses
+        are kept unrefined.
+
+    Raises
+    ------
+    UsageError if poses lie outside the clip or knots would cross.
+    """
+    T = motion.n_frames
+    ft = float(motion.frame_time)
+    frame_t = np.arange(T) * ft
+    pose_t = np.asarray(pose_t, dtype=float)
+    end = frame_t[-1]
+    if np.any(pose_t < -1e-9) or np.any(pose_t > end + 1e-9):
+        raise UsageError(f"pose times must lie within the clip (0 to {end:.4f} s)")
+    variables = dense_variables(motion)
+    V = sum(len(names) for _, names, _, _ in variables)
+    if refine is None:
+        refine = np.zeros((len(pose_t), V))
+    refine = np.asarray(refine, dtype=float)
+    if refine.shape != (len(pose_t), V):
+        raise UsageError(f"refinements must have shape ({len(pose_t)}, {V}), got {refine.shape}")
+    # first and last frame always carry an unrefined pose
+    extra = [t for t in (0.0, end) if not np.any(np.abs(pose_t - t) < 1e-9)]
+    if extra:
+        pose_t = np.concatenate([pose_t, extra])
+        refine = np.concatenate([refine, np.zeros((len(extra), V))])
+        if priority is not None:
+            priority = np.concatenate([priority, np.full(len(extra), np.inf)])
+    order = np.argsort(pose_t, kind="stable")
+    pose_t, refine = pose_t[order], refine[order]
+    if np.any(np.diff(pose_t) <= 0):
+        raise UsageError("pose times must be distinct")
+    refine[0] = 0.0
+    refine[-1] = 0.0
+    if priority is None:
+        priority = np.zeros(len(pose_t))
+        priority[[0, -1]] = np.inf
+    else:
+        priority = np.asarray(priority, dtype=float)[order]
+    tracks, col = [], 0
+    for kind, names, targets, dense in variables:
+        n = len(names)
+        tracks.append(build_track(kind, names, targets, frame_t, dense, pose_t, refine[:, col : col + n]))
+        col += n
+    sha = hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else ""
+    return Document(
+        pose_t=pose_t, priority=priority, tracks=tuple(tracks), source=motion, source_name=source_name,
+        source_sha256=sha, constraints=tuple(constraints), signals=dict(signals or {}), parameters=dict(parameters or {}),
+    )
+
+
+# --- back to dense motion ------------------------------------------------------
+
+
+def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
+    """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
+    if fps is None:
+        return doc.frame_times
+    if not np.isfinite(fps) or fps <= 0:
+        raise UsageError(f"--fps must be a positive number, got {fps}")
+    n = int(np.floor(doc.duration * fps + 1e-6)) + 1
+    return np.arange(n) / fps
+
+
+def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.ndarray, np.ndarray]:
+    """BVH documents: local rotations (N, J, 4) and translations (N, J, 3) at times ``t``."""
+    src = doc.source
+    assert isinstance(src, BvhMotion)
+    sk = src.skeleton
+    N = len(t)
+    rot = quat.identity((N, sk.n_joints))
+    tr = np.broadcast_to(sk.offsets, (N, sk.n_joints, 3)).copy()
+    for track in doc.tracks:
+        vals = evaluate(track, t, layers)
+        if track.kind == ROTATION:
+            rot[:, track.targets] = vals
+        else:
+            tr[:, track.targets] = vals
+    return rot, tr
+
+
+def marker_points(doc: Document, t: np.ndarray, layers: str = "all") -> np.ndarray:
+    """C3D documents: marker positions (N, M, 3) at times ``t``, NaN where the
+    source had a gap at the nearest source frame."""
+    src = doc.source
+    assert isinstance(src, MarkerMotion)
+    pts = evaluate(doc.tracks[0], t, layers)
+    nearest = np.clip(np.rint(np.asarray(t) / doc.frame_time).astype(int), 0, doc.n_frames - 1)
+    gap = ~np.all(np.isfinite(src.points), axis=2)[nearest]
+    return np.where(gap[..., None], np.nan, pts)
+
+
+def reference_channels(doc: Document, t: np.ndarray) -> np.ndarray:
+    """BVH channel values of the source at times ``t`` (exact on source frames,
+    linear between them): the reference for choosing Euler triples."""
+    src = doc.source
+    assert isinstance(src, BvhMotion)
+    ch = src.channels
+    if len(t) == src.n_frames and np.allclose(t, doc.frame_times, atol=1e-9, rtol=0):
+        return ch
+    f = np.clip(np.asarray(t) / doc.frame_time, 0, src.n_frames - 1)
+    lo = np.floor(f).astype(int)
+    hi = np.minimum(lo + 1, src.n_frames - 1)
+    w = (f - lo)[:, None]
+    return ch[lo] * (1 - w) + ch[hi] * w
+
+
+def check_pose_index(doc: Document, k: int) -> int:
+    if not -doc.n_poses <= k < doc.n_poses:
+        raise UsageError(f"pose {k} is out of range (the document has poses 0 to {doc.n_poses - 1})")
+    return k % doc.n_poses
+
+
+def require_bvh(doc: Document, what: str) -> BvhMotion:
+    if not isinstance(doc.source, BvhMotion):
+        raise UsageError(f"{what} needs a BVH document (this one comes from a C3D)")
+    return doc.source
+
+
+def not_a_document(name: str) -> DataError:
+    return DataError("is not a staggered-pose document", name)
+
+
+# --- to and from the stored form (manifest + arrays) ----------------------------
+
+_TRACK_ARRAYS = ("knot_ptr", "knot_t", "knot_v", "knot_pose", "knot_editing", "tan_a", "tan_b", "samp_ptr", "samp_s", "samp_d")
+
+
+def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
+    """The stored form of a document: a JSON-able manifest and numeric arrays."""
+    arrays: dict[str, np.ndarray] = {"pose_t": doc.pose_t, "priority": doc.priority}
+    tracks = []
+    for n, tr in enumerate(doc.tracks):
+        tracks.append({"kind": tr.kind, "names": list(tr.names), "targets": [int(x) for x in tr.targets]})
+        for key in _TRACK_ARRAYS:
+            arrays[f"track{n}.{key}"] = getattr(tr, key)
+    for key, val in doc.signals.items():
+        arrays[f"signal.{key}"] = np.asarray(val)
+    manifest: dict = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "source": {"kind": doc.kind, "name": doc.source_name, "sha256": doc.source_sha256},
+        "frame_time": doc.frame_time,
+        "frames": doc.n_frames,
+        "tracks": tracks,
+        "constraints": [{"joint": c.joint, "start": float(c.start), "end": float(c.end)} for c in doc.constraints],
+        "parameters": doc.parameters,
+    }
+    src = doc.source
+    if isinstance(src, BvhMotion):
+        sk = src.skeleton
+        manifest["bvh"] = {
+            "names": list(sk.names),
+            "parents": [int(p) for p in sk.parents],
+            "offsets": sk.offsets.tolist(),
+            "channels": [list(c) for c in sk.channels],
+            "end_parents": [int(p) for p in sk.end_parents],
+            "end_offsets": sk.end_offsets.tolist(),
+            "frame_time": src.frame_time,
+            "frame_time_text": src.frame_time_text,
+            "number_format": src.number_format,
+        }
+        arrays["source.channels"] = src.channels
+    else:
+        manifest["c3d"] = {"labels": list(src.labels), "rate": src.rate, "units": src.units}
+        arrays["source.points"] = src.points
+        arrays["source.c3d"] = np.frombuffer(src.source, dtype=np.uint8)
+    return manifest, arrays
+
+
+def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
+    """Rebuild and validate a document from its stored form.
+
+    Raises DataError naming the first inconsistency (no source attached:
+    the caller adds the file name).
+    """
+    from .skeleton import Skeleton
+
+    def need(cond: bool, msg: str) -> None:
+        if not cond:
+            raise DataError(msg)
+
+    def arr(key: str, ndim: int, dtype_kind: str = "f") -> np.ndarray:
+        need(key in arrays, f"missing array {key!r}")
+        a = arrays[key]
+        need(isinstance(a, np.ndarray) and a.ndim == ndim, f"array {key!r} must have {ndim} dimension(s)")
+        need(a.dtype.kind in dtype_kind, f"array {key!r} has dtype {a.dtype}, expected {dtype_kind!r} kind")
+        return a
+
+    need(isinstance(manifest, dict), "manifest is not a JSON object")
+    need(manifest.get("format") == FORMAT_NAME, f"format is {str(manifest.get('format'))[:40]!r}, not {FORMAT_NAME!r}")
+    version = manifest.get("version")
+    need(isinstance(version, int), "version is missing")
+    need(version <= FORMAT_VERSION, f"document version {version} is newer than this staggered reads ({FORMAT_VERSION}); upgrade staggered")
+    try:
+        frames = int(manifest["frames"])
+        frame_time = float(manifest["frame_time"])
+        src_info = manifest["source"]
+        kind = src_info["kind"]
+        track_info = manifest["tracks"]
+        constraints = tuple(Constraint(str(c["joint"]), float(c["start"]), float(c["end"])) for c in manifest.get("constraints", []))
+        parameters = manifest.get("parameters", {})
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"manifest is incomplete ({type(exc).__name__}: {str(exc)[:60]})") from None
+    need(frames >= 1 and np.isfinite(frame_time) and frame_time > 0, "frames and frame_time must be positive")
+    need(kind in ("bvh", "c3d"), f"unknown source kind {str(kind)[:20]!r}")
+    try:
+        if kind == "bvh":
+            b = manifest["bvh"]
+            names = tuple(str(n) for n in b["names"])
+            J = len(names)
+            sk = Skeleton(
+                names=names,
+                parents=np.array(b["parents"], dtype=int).reshape(J),
+                offsets=np.array(b["offsets"], dtype=float).reshape(J, 3),
+                channels=tuple(tuple(str(c) for c in ch) for ch in b["channels"]),
+                end_parents=np.array(b["end_parents"], dtype=int).reshape(-1),
+                end_offsets=np.array(b["end_offsets"], dtype=float).reshape(-1, 3),
+            )
+            need(len(sk.channels) == J, "bvh channels do not match the joints")
+            need(bool(np.all(sk.parents < np.arange(J))) and bool(np.all(sk.parents >= -1)), "bvh parents are not in hierarchy order")
+            need(bool(np.all((sk.end_parents >= 0) & (sk.end_parents < J))), "bvh end sites name unknown joints")
+            ch = arr("source.channels", 2)
+            need(ch.shape == (frames, sum(len(c) for c in sk.channels)), f"source.channels has shape {ch.shape}, expected ({frames}, channels)")
+            source: BvhMotion | MarkerMotion = BvhMotion(sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"]))
+            need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
+            need(_safe_format(source.number_format), "number_format is not a plain numeric format")
+        else:
+            c = manifest["c3d"]
+            labels = tuple(str(x) for x in c["labels"])
+            pts = arr("source.points", 3)
+            need(pts.shape == (frames, len(labels), 3), f"source.points has shape {pts.shape}, expected ({frames}, {len(labels)}, 3)")
+            raw = arr("source.c3d", 1, "u")
+            source = MarkerMotion(labels, pts, float(c["rate"]), str(c.get("units", "")), raw.tobytes())
+            need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"source description is malformed ({type(exc).__name__}: {str(exc)[:60]})") from None
+    pose_t = arr("pose_t", 1)
+    priority = arr("priority", 1)
+    K = len(pose_t)
+    need(K >= 1 and priority.shape == (K,), "pose_t and priority must be non-empty and of equal length")
+    need(bool(np.all(np.isfinite(pose_t))) and bool(np.all(np.diff(pose_t) > 0)), "pose times must be finite and strictly increasing")
+    need(not np.any(np.isnan(priority)), "priorities must not be NaN")
+    tracks = []
+    need(isinstance(track_info, list), "tracks must be a list")
+    for n, info in enumerate(track_info):
+        try:
+            tkind = info["kind"]
+            tnames = tuple(str(x) for x in info["names"])
+            targets = np.array(info["targets"], dtype=int).reshape(len(tnames))
+        except (KeyError, TypeError, ValueError):
+            raise DataError(f"track {n} description is malformed") from None
+        need(tkind in (TRANSLATION, ROTATION), f"track {n} has unknown kind {str(tkind)[:20]!r}")
+        tracks.append(_checked_track(n, tkind, tnames, targets, arrays, K, need, arr))
+    signals = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("signal.")}
+    return Document(
+        pose_t=pose_t, priority=priority, tracks=tuple(tracks), source=source, source_name=str(src_info.get("name", "")),
+        source_sha256=str(src_info.get("sha256", "")), constraints=constraints, signals=signals,
+        parameters=parameters if isinstance(parameters, dict) else {},
+    )
+
+
+def _safe_format(fmt: str) -> bool:
+    import re
+
+    return re.fullmatch(r"%\.\d{1,2}[fg]", fmt) is not None
+
+
+def _checked_track(n, kind, names, targets, arrays, K, need, arr) -> Track:
+    from .representation import check_knot_order
+
+    V = len(names)
+    D = 3 if kind == TRANSLATION else 4
+    p = f"track{n}."
+    knot_ptr = arr(p + "knot_ptr", 1, "iu").astype(int)
+    knot_t = arr(p + "knot_t", 1)
+    knot_v = arr(p + "knot_v", 2)
+    knot_pose = arr(p + "knot_pose", 1, "iu").astype(int)
+    knot_editing = arr(p + "knot_editing", 1, "b")
+    tan_a = arr(p + "tan_a", 2)
+    tan_b = arr(p + "tan_b", 2)
+    samp_ptr = arr(p + "samp_ptr", 1, "iu").astype(int)
+    samp_s = arr(p + "samp_s", 1)
+    samp_d = arr(p + "samp_d", 2)
+    NK = len(knot_t)
+    need(knot_ptr.shape == (V + 1,) and knot_ptr[0] == 0 and knot_ptr[-1] == NK, f"{p}knot_ptr does not index the knots")
+    need(bool(np.all(np.diff(knot_ptr) >= 1)), f"{p}knot_ptr gives a variable no knot")
+    need(knot_v.shape == (NK, D) and knot_pose.shape == (NK,) and knot_editing.shape == (NK,), f"{p}knot arrays have inconsistent shapes")
+    need(tan_a.shape == (NK - V, 3) and tan_b.shape == (NK - V, 3), f"{p}tangents do not match the segments")
+    NS = len(samp_s)
+    need(samp_ptr.shape == (V + 1,) and samp_ptr[0] == 0 and samp_ptr[-1] == NS and bool(np.all(np.diff(samp_ptr) >= 0)), f"{p}samp_ptr does not index the samples")
+    need(samp_d.shape == (NS, D), f"{p}samp_d has the wrong shape")
+    for a, label in ((knot_t, "knot times"), (knot_v, "knot values"), (tan_a, "tangents"), (tan_b, "tangents"), (samp_s, "samples"), (samp_d, "displacements")):
+        need(bool(np.all(np.isfinite(a))), f"{p}{label} are not all finite")
+    need(bool(np.all((knot_pose >= 0) & (knot_pose < K))), f"{p}knots name poses that do not exist")
+    nseg = np.diff(knot_ptr) - 1
+    owner = np.repeat(np.arange(V), np.diff(samp_ptr))
+    need(bool(np.all((samp_s >= 0) & (samp_s <= nseg[owner]))), f"{p}samples lie outside their variable's segments")
+    if kind == ROTATION:
+        need(bool(np.all(np.abs(np.linalg.norm(knot_v, axis=1) - 1) < 1e-6)), f"{p}knot rotations are not unit quaternions")
+        need(bool(np.all(np.abs(np.linalg.norm(samp_d, axis=1) - 1) < 1e-6)), f"{p}displacement rotations are not unit quaternions")
+    try:
+        check_knot_order(knot_ptr, knot_t, names)
+    except Exception as exc:  # KnotOrderError is a usage error when editing, a data error when read
+        raise DataError(f"{p}{exc}") from None
+    return Track(kind, names, targets, knot_ptr, knot_t, knot_v, knot_pose, knot_editing.astype(bool), tan_a, tan_b, samp_ptr, samp_s, samp_d)
+
+
+def document_summary(doc: Document) -> dict:
+    """What ``info --json`` prints for a document (a public interface: keep it stable)."""
+    ref = doc.refinements()
+    names = doc.variable_names
+    poses = []
+    for k in range(doc.n_poses):
+        r = {names[i]: round(float(ref[k, i]), 9) for i in np.flatnonzero(ref[k] != 0.0)}
+        pr = float(doc.priority[k])
+        poses.append({"index": k, "time": round(float(doc.pose_t[k]), 9), "priority": pr if np.isfinite(pr) else None, "refinements": r})
+    src = doc.source
+    out = {
+        "kind": "document",
+        "source": {"kind": doc.kind, "name": doc.source_name, "sha256": doc.source_sha256},
+        "frames": doc.n_frames,
+        "frame_time": doc.frame_time,
+        "rate": src.rate,
+        "duration": round(doc.duration, 9),
+        "variables": len(names),
+        "poses": poses,
+        "constraints": [{"joint": c.joint, "start": round(c.start, 9), "end": round(c.end, 9)} for c in doc.constraints],
+        "figure_height": round(float(src.figure_height()), 6),
+    }
+    if isinstance(src, BvhMotion):
+        out["joints"] = list(src.skeleton.names)
+    else:
+        out["markers"] = list(src.labels)
+    return out

@@ -1,0 +1,98 @@
+"""The representation round trip (SPEC invariant 1) on every real file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from staggered_cli import document as D
+from staggered_cli import quat
+from staggered_cli.io.bvh import read_bvh
+from staggered_cli.motion import channels_from_local
+from staggered_cli.representation import evaluate, restructure, with_knot_times
+from staggered_cli.skeleton import forward_kinematics
+
+from .conftest import BVH_FILES, C3D_FILES, mocap
+
+
+def _bake_channels(doc):
+    rot, tr = D.local_pose(doc, doc.frame_times)
+    return channels_from_local(doc.source.skeleton, rot, tr, doc.source.channels), rot, tr
+
+
+def _random_refinements(doc, rng, bound=0.1):
+    V = sum(t.n_vars for t in doc.tracks)
+    ref = rng.uniform(-bound, bound, (doc.n_poses, V))
+    return ref
+
+
+@pytest.fixture(scope="module", params=BVH_FILES)
+def bvh(request):
+    return read_bvh(mocap(request.param))
+
+
+@pytest.mark.parametrize("refined", [False, True])
+def test_bvh_round_trip(bvh, refined):
+    rng = np.random.default_rng(7)
+    pose_t = np.arange(0.0, (bvh.n_frames - 1) * bvh.frame_time, 0.25)
+    doc = D.from_motion(bvh, pose_t)
+    if refined:
+        doc = D.from_motion(bvh, doc.pose_t, _random_refinements(doc, rng))
+        assert np.count_nonzero(doc.refinements()) > doc.n_poses
+    ch, rot, tr = _bake_channels(doc)
+    assert np.abs(ch - bvh.channels).max() < 1e-6
+    _, wp = forward_kinematics(bvh.skeleton, rot, tr)
+    _, wp0 = bvh.world()
+    assert np.abs(wp - wp0).max() < 1e-6 * bvh.figure_height()
+
+
+@pytest.mark.parametrize("name", C3D_FILES)
+def test_c3d_round_trip(name):
+    from staggered_cli.io.c3d import read_c3d
+
+    m = read_c3d(mocap(name))
+    rng = np.random.default_rng(3)
+    pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.25)
+    doc = D.from_motion(m, pose_t)
+    doc = D.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
+    pts = D.marker_points(doc, doc.frame_times)
+    gaps = np.isnan(m.points)
+    np.testing.assert_array_equal(np.isnan(pts), gaps)
+    assert np.nanmax(np.abs(pts - m.points)) < 1e-6 * m.figure_height()
+
+
+def test_restructure_keeps_the_motion_and_retime_warps_it():
+    m = read_bvh(mocap("cmu_02_01_walk.bvh"))
+    doc = D.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.2))
+    rot = doc.tracks[1]
+    before = evaluate(rot, doc.frame_times)
+    # drop every other pose's knots (keeping the first and last): a cull
+    keep = np.isin(rot.knot_pose, [0, 2, 4, 6, 8, 10, 12, doc.n_poses - 1])
+    var = np.repeat(np.arange(rot.n_vars), np.diff(rot.knot_ptr))
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(var[keep], minlength=rot.n_vars))])
+    culled = restructure(rot, ptr, rot.knot_t[keep], rot.knot_v[keep], rot.knot_pose[keep], rot.knot_editing[keep])
+    after = evaluate(culled, doc.frame_times)
+    assert np.degrees(quat.angle_between(before, after)).max() < 1e-7
+    # moving an interior knot changes the motion only between its neighbours
+    kt = culled.knot_t.copy()
+    i = 3
+    j = culled.knot_ptr[i] + 2
+    kt[j] += 0.03
+    warped = evaluate(with_knot_times(culled, kt), doc.frame_times)
+    changed = np.degrees(quat.angle_between(after[:, i], warped[:, i])) > 1e-9
+    lo, hi = culled.knot_t[j - 1], culled.knot_t[j + 1]
+    assert changed.any()
+    assert np.all((doc.frame_times[changed] > lo) & (doc.frame_times[changed] < hi))
+    others = np.delete(np.arange(culled.n_vars), i)
+    assert np.degrees(quat.angle_between(after[:, others], warped[:, others])).max() < 1e-9
+
+
+def test_parts_round_trip_exactly():
+    m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
+    doc = D.from_motion(m, np.arange(0.0, 2.0, 0.3))
+    manifest, arrays = D.to_parts(doc)
+    back = D.from_parts(manifest, arrays)
+    m2, a2 = D.to_parts(back)
+    assert m2 == manifest
+    for k in arrays:
+        np.testing.assert_array_equal(a2[k], arrays[k])
