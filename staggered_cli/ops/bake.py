@@ -1,0 +1,124 @@
+"""Bake a document back to dense motion: splines ⊕ displacement maps ⊕ the
+contact layer, in the source's skeleton and channel layout (or markers).
+
+The contact (IK) layer repairs what edits disturbed: a constraint whose
+effector is where the source had it (to 1e-6 of the figure's size) over the
+constraint and its blend windows gets no layer, so an unedited round trip
+stays lossless and an edit stays local; a disturbed one is pinned to the
+mean position its effector has over the constraint in the baked motion.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..document import Document, local_pose, marker_points, output_times, reference_channels
+from ..errors import UsageError
+from ..motion import BvhMotion, MarkerMotion, channels_from_local, local_rotations_from_channels, local_translations_from_channels
+from ..skeleton import forward_kinematics
+
+_UNDISTURBED = 1e-6  # of figure height
+
+
+def bake(doc: Document, *, fps: float | None = None, layers: str = "all", ik: bool = True, ik_blend: float = 0.1) -> BvhMotion | MarkerMotion:
+    """Dense motion of ``doc`` at the source rate (or ``fps``).
+
+    Parameters
+    ----------
+    layers : ``'all'`` or ``'splines'`` (the splines alone, without
+        displacement maps or the contact layer: what the poses capture).
+    ik : apply the contact layer to disturbed constraints.
+    ik_blend : seconds over which the layer fades in and out.
+    """
+    if layers not in ("all", "splines"):
+        raise UsageError(f"--layers must be 'all' or 'splines', got {layers!r}")
+    if not np.isfinite(ik_blend) or ik_blend < 0:
+        raise UsageError(f"--ik-blend must be a non-negative number of seconds, got {ik_blend}")
+    t = output_times(doc, fps)
+    same_rate = fps is None or abs(fps * doc.frame_time - 1.0) < 1e-9
+    frame_time = doc.frame_time if same_rate else 1.0 / fps
+    if doc.kind == "bvh":
+        src = doc.source
+        rot, tr = local_pose(doc, t, layers)
+        if ik and layers == "all" and doc.constraints:
+            rot = _contact_layer(doc, rot, tr, t, ik_blend, same_rate)
+        channels = channels_from_local(src.skeleton, rot, tr, reference_channels(doc, t))
+        text = src.frame_time_text if same_rate else _frame_time_text(frame_time)
+        return BvhMotion(src.skeleton, channels, frame_time, text, src.number_format)
+    src = doc.source
+    pts = marker_points(doc, t, layers)
+    if ik and layers == "all" and doc.constraints:
+        pts = _pin_markers(doc, pts, t, ik_blend, same_rate)
+    return MarkerMotion(src.labels, pts, 1.0 / frame_time, src.units, src.source)
+
+
+def _frame_time_text(ft: float) -> str:
+    return f"{ft:.7f}".rstrip("0")
+
+
+def _disturbed(doc: Document, joint_pos: np.ndarray, source_pos: np.ndarray | None, t: np.ndarray, c, blend: float, size: float) -> bool:
+    if source_pos is None:
+        return True
+    window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
+    if not window.any():
+        return False
+    d = np.linalg.norm(joint_pos[window] - source_pos[window], axis=-1)
+    return bool(np.nanmax(d) > _UNDISTURBED * size)
+
+
+def _contact_layer(doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool) -> np.ndarray:
+    from ..ik import ik_layer
+
+    src = doc.source
+    sk = src.skeleton
+    _, wp = forward_kinematics(sk, rot, tr)
+    src_wp = None
+    if same_rate:
+        src_wp = forward_kinematics(sk, local_rotations_from_channels(sk, src.channels), local_translations_from_channels(sk, src.channels))[1]
+    size = src.figure_height()
+    todo = []
+    for c in doc.constraints:
+        if c.joint not in sk.names:
+            raise UsageError(f"constraint on unknown joint {c.joint!r}")
+        j = sk.names.index(c.joint)
+        if _disturbed(doc, wp[:, j], None if src_wp is None else src_wp[:, j], t, c, blend, size):
+            todo.append(c)
+    if not todo:
+        return rot
+    return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend)
+
+
+def _smooth_weight(t: np.ndarray, start: float, end: float, blend: float) -> np.ndarray:
+    """1 inside [start, end], a C1 smoothstep ramp to 0 over ``blend`` seconds outside."""
+    w = ((t >= start) & (t <= end)).astype(float)
+    if blend > 0:
+        for edge, side in ((start, -1.0), (end, 1.0)):
+            x = side * (t - edge) / blend
+            ramp = (x > 0) & (x < 1)
+            s = 1.0 - x[ramp]
+            w[ramp] = np.maximum(w[ramp], s * s * (3.0 - 2.0 * s))
+    return w
+
+
+def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, same_rate: bool) -> np.ndarray:
+    """C3D: a constrained marker is held at its mean position over the
+    constraint, blended in and out (markers have no chain to solve)."""
+    src = doc.source
+    size = src.figure_height()
+    out = pts.copy()
+    for c in doc.constraints:
+        if c.joint not in src.labels:
+            raise UsageError(f"constraint on unknown marker {c.joint!r}")
+        m = src.labels.index(c.joint)
+        ref = src.points[:, m] if same_rate else None
+        with np.errstate(invalid="ignore"):
+            if not _disturbed(doc, pts[:, m], ref, t, c, blend, size):
+                continue
+        inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
+        seen = inside & np.all(np.isfinite(pts[:, m]), axis=1)
+        if not seen.any():
+            continue
+        target = pts[seen, m].mean(axis=0)
+        w = _smooth_weight(t, c.start, c.end, blend)[:, None]
+        out[:, m] = np.where(w > 0, pts[:, m] + w * (target - pts[:, m]), out[:, m])
+    return out
