@@ -18,7 +18,14 @@ import numpy as np
 
 from . import quat
 from .errors import DataError, UsageError
-from .motion import BvhMotion, MarkerMotion, local_rotations_from_channels, local_translations_from_channels, position_columns, rotation_columns
+from .motion import (
+    BvhMotion,
+    MarkerMotion,
+    local_rotations_from_channels,
+    local_translations_from_channels,
+    position_columns,
+    rotation_columns,
+)
 from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
 
 FORMAT_NAME = "staggered-poses"
@@ -214,8 +221,15 @@ def from_motion(
         col += n
     sha = hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else ""
     return Document(
-        pose_t=pose_t, priority=priority, tracks=tuple(tracks), source=motion, source_name=source_name,
-        source_sha256=sha, constraints=tuple(constraints), signals=dict(signals or {}), parameters=dict(parameters or {}),
+        pose_t=pose_t,
+        priority=priority,
+        tracks=tuple(tracks),
+        source=motion,
+        source_name=source_name,
+        source_sha256=sha,
+        constraints=tuple(constraints),
+        signals=dict(signals or {}),
+        parameters=dict(parameters or {}),
     )
 
 
@@ -293,7 +307,18 @@ def not_a_document(name: str) -> DataError:
 
 # --- to and from the stored form (manifest + arrays) ----------------------------
 
-_TRACK_ARRAYS = ("knot_ptr", "knot_t", "knot_v", "knot_pose", "knot_editing", "tan_a", "tan_b", "samp_ptr", "samp_s", "samp_d")
+_TRACK_ARRAYS = (
+    "knot_ptr",
+    "knot_t",
+    "knot_v",
+    "knot_pose",
+    "knot_editing",
+    "tan_a",
+    "tan_b",
+    "samp_ptr",
+    "samp_s",
+    "samp_d",
+)
 
 
 def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
@@ -361,14 +386,19 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     need(manifest.get("format") == FORMAT_NAME, f"format is {str(manifest.get('format'))[:40]!r}, not {FORMAT_NAME!r}")
     version = manifest.get("version")
     need(isinstance(version, int), "version is missing")
-    need(version <= FORMAT_VERSION, f"document version {version} is newer than this staggered reads ({FORMAT_VERSION}); upgrade staggered")
+    need(
+        version <= FORMAT_VERSION,
+        f"document version {version} is newer than this staggered reads ({FORMAT_VERSION}); upgrade staggered",
+    )
     try:
         frames = int(manifest["frames"])
         frame_time = float(manifest["frame_time"])
         src_info = manifest["source"]
         kind = src_info["kind"]
         track_info = manifest["tracks"]
-        constraints = tuple(Constraint(str(c["joint"]), float(c["start"]), float(c["end"])) for c in manifest.get("constraints", []))
+        constraints = tuple(
+            Constraint(str(c["joint"]), float(c["start"]), float(c["end"])) for c in manifest.get("constraints", [])
+        )
         parameters = manifest.get("parameters", {})
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"manifest is incomplete ({type(exc).__name__}: {str(exc)[:60]})") from None
@@ -388,18 +418,29 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 end_offsets=np.array(b["end_offsets"], dtype=float).reshape(-1, 3),
             )
             need(len(sk.channels) == J, "bvh channels do not match the joints")
-            need(bool(np.all(sk.parents < np.arange(J))) and bool(np.all(sk.parents >= -1)), "bvh parents are not in hierarchy order")
+            need(
+                bool(np.all(sk.parents < np.arange(J))) and bool(np.all(sk.parents >= -1)),
+                "bvh parents are not in hierarchy order",
+            )
             need(bool(np.all((sk.end_parents >= 0) & (sk.end_parents < J))), "bvh end sites name unknown joints")
             ch = arr("source.channels", 2)
-            need(ch.shape == (frames, sum(len(c) for c in sk.channels)), f"source.channels has shape {ch.shape}, expected ({frames}, channels)")
-            source: BvhMotion | MarkerMotion = BvhMotion(sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"]))
+            need(
+                ch.shape == (frames, sum(len(c) for c in sk.channels)),
+                f"source.channels has shape {ch.shape}, expected ({frames}, channels)",
+            )
+            source: BvhMotion | MarkerMotion = BvhMotion(
+                sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"])
+            )
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")
         else:
             c = manifest["c3d"]
             labels = tuple(str(x) for x in c["labels"])
             pts = arr("source.points", 3)
-            need(pts.shape == (frames, len(labels), 3), f"source.points has shape {pts.shape}, expected ({frames}, {len(labels)}, 3)")
+            need(
+                pts.shape == (frames, len(labels), 3),
+                f"source.points has shape {pts.shape}, expected ({frames}, {len(labels)}, 3)",
+            )
             raw = arr("source.c3d", 1, "u")
             source = MarkerMotion(labels, pts, float(c["rate"]), str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
@@ -409,7 +450,10 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     priority = arr("priority", 1)
     K = len(pose_t)
     need(K >= 1 and priority.shape == (K,), "pose_t and priority must be non-empty and of equal length")
-    need(bool(np.all(np.isfinite(pose_t))) and bool(np.all(np.diff(pose_t) > 0)), "pose times must be finite and strictly increasing")
+    need(
+        bool(np.all(np.isfinite(pose_t))) and bool(np.all(np.diff(pose_t) > 0)),
+        "pose times must be finite and strictly increasing",
+    )
     need(not np.any(np.isnan(priority)), "priorities must not be NaN")
     tracks = []
     need(isinstance(track_info, list), "tracks must be a list")
@@ -424,8 +468,14 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         tracks.append(_checked_track(n, tkind, tnames, targets, arrays, K, need, arr))
     signals = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("signal.")}
     return Document(
-        pose_t=pose_t, priority=priority, tracks=tuple(tracks), source=source, source_name=str(src_info.get("name", "")),
-        source_sha256=str(src_info.get("sha256", "")), constraints=constraints, signals=signals,
+        pose_t=pose_t,
+        priority=priority,
+        tracks=tuple(tracks),
+        source=source,
+        source_name=str(src_info.get("name", "")),
+        source_sha256=str(src_info.get("sha256", "")),
+        constraints=constraints,
+        signals=signals,
         parameters=parameters if isinstance(parameters, dict) else {},
     )
 
@@ -453,27 +503,62 @@ def _checked_track(n, kind, names, targets, arrays, K, need, arr) -> Track:
     samp_s = arr(p + "samp_s", 1)
     samp_d = arr(p + "samp_d", 2)
     NK = len(knot_t)
-    need(knot_ptr.shape == (V + 1,) and knot_ptr[0] == 0 and knot_ptr[-1] == NK, f"{p}knot_ptr does not index the knots")
+    need(
+        knot_ptr.shape == (V + 1,) and knot_ptr[0] == 0 and knot_ptr[-1] == NK, f"{p}knot_ptr does not index the knots"
+    )
     need(bool(np.all(np.diff(knot_ptr) >= 1)), f"{p}knot_ptr gives a variable no knot")
-    need(knot_v.shape == (NK, D) and knot_pose.shape == (NK,) and knot_editing.shape == (NK,), f"{p}knot arrays have inconsistent shapes")
+    need(
+        knot_v.shape == (NK, D) and knot_pose.shape == (NK,) and knot_editing.shape == (NK,),
+        f"{p}knot arrays have inconsistent shapes",
+    )
     need(tan_a.shape == (NK - V, 3) and tan_b.shape == (NK - V, 3), f"{p}tangents do not match the segments")
     NS = len(samp_s)
-    need(samp_ptr.shape == (V + 1,) and samp_ptr[0] == 0 and samp_ptr[-1] == NS and bool(np.all(np.diff(samp_ptr) >= 0)), f"{p}samp_ptr does not index the samples")
+    need(
+        samp_ptr.shape == (V + 1,) and samp_ptr[0] == 0 and samp_ptr[-1] == NS and bool(np.all(np.diff(samp_ptr) >= 0)),
+        f"{p}samp_ptr does not index the samples",
+    )
     need(samp_d.shape == (NS, D), f"{p}samp_d has the wrong shape")
-    for a, label in ((knot_t, "knot times"), (knot_v, "knot values"), (tan_a, "tangents"), (tan_b, "tangents"), (samp_s, "samples"), (samp_d, "displacements")):
+    for a, label in (
+        (knot_t, "knot times"),
+        (knot_v, "knot values"),
+        (tan_a, "tangents"),
+        (tan_b, "tangents"),
+        (samp_s, "samples"),
+        (samp_d, "displacements"),
+    ):
         need(bool(np.all(np.isfinite(a))), f"{p}{label} are not all finite")
     need(bool(np.all((knot_pose >= 0) & (knot_pose < K))), f"{p}knots name poses that do not exist")
     nseg = np.diff(knot_ptr) - 1
     owner = np.repeat(np.arange(V), np.diff(samp_ptr))
     need(bool(np.all((samp_s >= 0) & (samp_s <= nseg[owner]))), f"{p}samples lie outside their variable's segments")
     if kind == ROTATION:
-        need(bool(np.all(np.abs(np.linalg.norm(knot_v, axis=1) - 1) < 1e-6)), f"{p}knot rotations are not unit quaternions")
-        need(bool(np.all(np.abs(np.linalg.norm(samp_d, axis=1) - 1) < 1e-6)), f"{p}displacement rotations are not unit quaternions")
+        need(
+            bool(np.all(np.abs(np.linalg.norm(knot_v, axis=1) - 1) < 1e-6)),
+            f"{p}knot rotations are not unit quaternions",
+        )
+        need(
+            bool(np.all(np.abs(np.linalg.norm(samp_d, axis=1) - 1) < 1e-6)),
+            f"{p}displacement rotations are not unit quaternions",
+        )
     try:
         check_knot_order(knot_ptr, knot_t, names)
     except Exception as exc:  # KnotOrderError is a usage error when editing, a data error when read
         raise DataError(f"{p}{exc}") from None
-    return Track(kind, names, targets, knot_ptr, knot_t, knot_v, knot_pose, knot_editing.astype(bool), tan_a, tan_b, samp_ptr, samp_s, samp_d)
+    return Track(
+        kind,
+        names,
+        targets,
+        knot_ptr,
+        knot_t,
+        knot_v,
+        knot_pose,
+        knot_editing.astype(bool),
+        tan_a,
+        tan_b,
+        samp_ptr,
+        samp_s,
+        samp_d,
+    )
 
 
 def document_summary(doc: Document) -> dict:
@@ -484,7 +569,14 @@ def document_summary(doc: Document) -> dict:
     for k in range(doc.n_poses):
         r = {names[i]: round(float(ref[k, i]), 9) for i in np.flatnonzero(ref[k] != 0.0)}
         pr = float(doc.priority[k])
-        poses.append({"index": k, "time": round(float(doc.pose_t[k]), 9), "priority": pr if np.isfinite(pr) else None, "refinements": r})
+        poses.append(
+            {
+                "index": k,
+                "time": round(float(doc.pose_t[k]), 9),
+                "priority": pr if np.isfinite(pr) else None,
+                "refinements": r,
+            }
+        )
     src = doc.source
     out = {
         "kind": "document",
@@ -495,7 +587,9 @@ def document_summary(doc: Document) -> dict:
         "duration": round(doc.duration, 9),
         "variables": len(names),
         "poses": poses,
-        "constraints": [{"joint": c.joint, "start": round(c.start, 9), "end": round(c.end, 9)} for c in doc.constraints],
+        "constraints": [
+            {"joint": c.joint, "start": round(c.start, 9), "end": round(c.end, 9)} for c in doc.constraints
+        ],
         "figure_height": round(float(src.figure_height()), 6),
     }
     if isinstance(src, BvhMotion):

@@ -16,7 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quat
-from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton, end_site_positions, figure_height, forward_kinematics
+from .skeleton import (
+    POSITION_CHANNELS,
+    ROTATION_CHANNELS,
+    Skeleton,
+    end_site_positions,
+    figure_height,
+    forward_kinematics,
+)
 
 
 @dataclass(frozen=True)

@@ -103,9 +103,19 @@ def empty_track(kind: str, names: tuple[str, ...] = (), targets: np.ndarray | No
     z = np.zeros(0)
     zi = np.zeros(0, dtype=int)
     return Track(
-        kind, tuple(names), np.zeros(len(names), dtype=int) if targets is None else np.asarray(targets, dtype=int),
-        np.zeros(len(names) + 1, dtype=int), z, np.zeros((0, d)), zi, np.zeros(0, dtype=bool),
-        np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(len(names) + 1, dtype=int), z, np.zeros((0, d)),
+        kind,
+        tuple(names),
+        np.zeros(len(names), dtype=int) if targets is None else np.asarray(targets, dtype=int),
+        np.zeros(len(names) + 1, dtype=int),
+        z,
+        np.zeros((0, d)),
+        zi,
+        np.zeros(0, dtype=bool),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros(len(names) + 1, dtype=int),
+        z,
+        np.zeros((0, d)),
     )
 
 
@@ -264,9 +274,19 @@ def fit_track(
         disp = quat.hemisphere(quat.mul(quat.conj(s_val), v_a), quat.identity((1,)))
     samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner_a, minlength=V))]).astype(int)
     return Track(
-        kind, tuple(names), np.asarray(targets, dtype=int), np.asarray(knot_ptr, dtype=int),
-        np.asarray(knot_t, dtype=float), np.asarray(knot_v, dtype=float), np.asarray(knot_pose, dtype=int),
-        np.asarray(knot_editing, dtype=bool), a, b, samp_ptr, s_a, disp,
+        kind,
+        tuple(names),
+        np.asarray(targets, dtype=int),
+        np.asarray(knot_ptr, dtype=int),
+        np.asarray(knot_t, dtype=float),
+        np.asarray(knot_v, dtype=float),
+        np.asarray(knot_pose, dtype=int),
+        np.asarray(knot_editing, dtype=bool),
+        a,
+        b,
+        samp_ptr,
+        s_a,
+        disp,
     )
 
 
@@ -383,7 +403,11 @@ def _displacement_at(track: Track, var: np.ndarray, s: np.ndarray, order: np.nda
         o = np.argsort(xs, kind="stable")
         xs, ys = xs[o], ys[o]
         si = s[idx]
-        hi = np.clip(np.searchsorted(xs, si, side="right"), 1, len(xs) - 1) if len(xs) > 1 else np.zeros(len(si), dtype=int)
+        hi = (
+            np.clip(np.searchsorted(xs, si, side="right"), 1, len(xs) - 1)
+            if len(xs) > 1
+            else np.zeros(len(si), dtype=int)
+        )
         lo = np.maximum(hi - 1, 0)
         span = xs[hi] - xs[lo]
         ww = np.where(span > 0, (si - xs[lo]) / np.where(span > 0, span, 1.0), 0.0)
@@ -442,7 +466,9 @@ def restructure(
     values = evaluate_at(track, flat_var, flat_t)
     bounds = np.concatenate([[0], np.cumsum([len(x) for x in samples_t])])
     samples_v = [values[bounds[i] : bounds[i + 1]] for i in range(track.n_vars)]
-    return fit_track(track.kind, track.names, track.targets, knot_ptr, knot_t, knot_v, knot_pose, knot_editing, samples_t, samples_v)
+    return fit_track(
+        track.kind, track.names, track.targets, knot_ptr, knot_t, knot_v, knot_pose, knot_editing, samples_t, samples_v
+    )
 
 
 def pose_arrays(track: Track, n_poses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

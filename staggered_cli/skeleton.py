@@ -50,8 +50,7 @@ class Skeleton:
             return self.names.index(name)
         except ValueError:
             raise UsageError(
-                f"unknown joint {name!r} (joints: {', '.join(self.names[:8])}"
-                f"{', ...' if len(self.names) > 8 else ''})"
+                f"unknown joint {name!r} (joints: {', '.join(self.names[:8])}{', ...' if len(self.names) > 8 else ''})"
             ) from None
 
     def rotation_order(self, j: int) -> str:

@@ -74,7 +74,9 @@ def test_quaternions_agree_with_bvhio(motion):
         j = m.skeleton.index(joint.Name)
         if not m.skeleton.has_rotation(j):
             continue
-        theirs = np.array([[k.Rotation.w, k.Rotation.x, k.Rotation.y, k.Rotation.z] for k in (joint.Keyframes[f] for f in frames)])
+        theirs = np.array(
+            [[k.Rotation.w, k.Rotation.x, k.Rotation.y, k.Rotation.z] for k in (joint.Keyframes[f] for f in frames)]
+        )
         worst = max(worst, float(np.degrees(quat.angle_between(quat.normalize(theirs), ours[frames, j])).max()))
     assert worst < 1e-4
 
@@ -111,7 +113,12 @@ def test_gimbal_lock_has_no_flips():
     again = local_rotations_from_channels(m.skeleton, back)
     assert np.degrees(quat.angle_between(again, rot)).max() < 1e-6
     with_source = channels_from_local(m.skeleton, rot, m.local_translations(), m.channels)
-    assert np.abs(np.diff(with_source, axis=0)).max() == pytest.approx(np.abs(np.diff(m.channels, axis=0)).max(), abs=1e-6)
+    assert np.abs(np.diff(with_source, axis=0)).max() == pytest.approx(
+        np.abs(np.diff(m.channels, axis=0)).max(), abs=1e-6
+    )
+
+
+HEAD = b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: "
 
 
 @pytest.mark.parametrize(
@@ -121,13 +128,34 @@ def test_gimbal_lock_has_no_flips():
         (b"hello world\n", "not a BVH"),
         (b"\xff\xfeH\x00I\x00", "UTF-16"),
         (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\n", "no MOTION"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n", "declares 2 frames but has 1"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n1 2\n", "frame 1 has 2 values"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Wposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n", "unknown channel"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 nan 3\n", "not a finite number"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 x 3\n", "'x' is not a number"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n", "ends early"),
-        (b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 100000000\nFrame Time: 0.1\n1 2 3\n", "declares 100000000 frames but has 1"),
+        (
+            HEAD + b"2\nFrame Time: 0.1\n1 2 3\n",
+            "declares 2 frames but has 1",
+        ),
+        (
+            HEAD + b"2\nFrame Time: 0.1\n1 2 3\n1 2\n",
+            "frame 1 has 2 values",
+        ),
+        (
+            b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Wposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n",  # noqa: E501
+            "unknown channel",
+        ),
+        (
+            HEAD + b"1\nFrame Time: 0.1\n1 nan 3\n",
+            "not a finite number",
+        ),
+        (
+            HEAD + b"1\nFrame Time: 0.1\n1 x 3\n",
+            "'x' is not a number",
+        ),
+        (
+            b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n",  # noqa: E501
+            "ends early",
+        ),
+        (
+            HEAD + b"100000000\nFrame Time: 0.1\n1 2 3\n",
+            "declares 100000000 frames but has 1",
+        ),
     ],
 )
 def test_malformed_input_names_the_file(text, message, tmp_path):

@@ -228,7 +228,8 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
     try:
         n_frames = int(m_frames.group(1))
     except ValueError:
-        raise DataError(f"line {first_line + 2}: frame count {m_frames.group(1)[:20].decode(errors='replace')!r} is not a whole number") from None
+        count = m_frames.group(1)[:20].decode(errors="replace")
+        raise DataError(f"line {first_line + 2}: frame count {count!r} is not a whole number") from None
     ft_text = m_time.group(1).decode("ascii", errors="replace")
     try:
         frame_time = float(ft_text)
@@ -274,7 +275,9 @@ def _explain_count(text: str, n_frames: int, n_channels: int, first_line: int) -
         if n == 0:
             continue
         if n != n_channels:
-            raise DataError(f"line {first_line + i}: frame {frame} has {n} values, the HIERARCHY declares {n_channels} channels")
+            raise DataError(
+                f"line {first_line + i}: frame {frame} has {n} values, the HIERARCHY declares {n_channels} channels"
+            )
         frame += 1
     if frame < n_frames:
         raise DataError(f"declares {n_frames} frames but has {frame} (truncated?)")
@@ -340,13 +343,24 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
         for c in children.get(j, []):
             emit(c, depth + 1)
         for o in ends.get(j, []):
-            out.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {' '.join(_fmt_number(v) for v in o)}", f"{ind}\t}}"])
+            out.extend(
+                [
+                    f"{ind}\tEnd Site",
+                    f"{ind}\t{{",
+                    f"{ind}\t\tOFFSET {' '.join(_fmt_number(v) for v in o)}",
+                    f"{ind}\t}}",
+                ]
+            )
         out.append(f"{ind}}}")
 
     for r in children.get(-1, []):
         emit(r, 0)
     ch = motion.channels
-    out += ["MOTION", f"Frames: {ch.shape[0]}", f"Frame Time: {motion.frame_time_text or _fmt_number(motion.frame_time)}"]
+    out += [
+        "MOTION",
+        f"Frames: {ch.shape[0]}",
+        f"Frame Time: {motion.frame_time_text or _fmt_number(motion.frame_time)}",
+    ]
     header = "\n".join(out) + "\n"
     if ch.shape[0] == 0:
         return header.encode("ascii")

@@ -14,13 +14,21 @@ import numpy as np
 
 from ..document import Document, local_pose, marker_points, output_times, reference_channels
 from ..errors import UsageError
-from ..motion import BvhMotion, MarkerMotion, channels_from_local, local_rotations_from_channels, local_translations_from_channels
+from ..motion import (
+    BvhMotion,
+    MarkerMotion,
+    channels_from_local,
+    local_rotations_from_channels,
+    local_translations_from_channels,
+)
 from ..skeleton import forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height
 
 
-def bake(doc: Document, *, fps: float | None = None, layers: str = "all", ik: bool = True, ik_blend: float = 0.1) -> BvhMotion | MarkerMotion:
+def bake(
+    doc: Document, *, fps: float | None = None, layers: str = "all", ik: bool = True, ik_blend: float = 0.1
+) -> BvhMotion | MarkerMotion:
     """Dense motion of ``doc`` at the source rate (or ``fps``).
 
     Parameters
@@ -56,7 +64,9 @@ def _frame_time_text(ft: float) -> str:
     return f"{ft:.7f}".rstrip("0")
 
 
-def _disturbed(doc: Document, joint_pos: np.ndarray, source_pos: np.ndarray | None, t: np.ndarray, c, blend: float, size: float) -> bool:
+def _disturbed(
+    doc: Document, joint_pos: np.ndarray, source_pos: np.ndarray | None, t: np.ndarray, c, blend: float, size: float
+) -> bool:
     if source_pos is None:
         return True
     window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
@@ -66,7 +76,9 @@ def _disturbed(doc: Document, joint_pos: np.ndarray, source_pos: np.ndarray | No
     return bool(np.nanmax(d) > _UNDISTURBED * size)
 
 
-def _contact_layer(doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool) -> np.ndarray:
+def _contact_layer(
+    doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool
+) -> np.ndarray:
     from ..ik import ik_layer
 
     src = doc.source
@@ -74,7 +86,9 @@ def _contact_layer(doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray
     _, wp = forward_kinematics(sk, rot, tr)
     src_wp = None
     if same_rate:
-        src_wp = forward_kinematics(sk, local_rotations_from_channels(sk, src.channels), local_translations_from_channels(sk, src.channels))[1]
+        src_wp = forward_kinematics(
+            sk, local_rotations_from_channels(sk, src.channels), local_translations_from_channels(sk, src.channels)
+        )[1]
     size = src.figure_height()
     todo = []
     for c in doc.constraints:

@@ -116,7 +116,9 @@ def add_pose(doc: Document, time: float) -> Document:
         value = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time))
         pose = np.where(tr.knot_pose >= k_new, tr.knot_pose + 1, tr.knot_pose)
         # insert one knot per variable, keeping each variable's knots sorted
-        ins = np.array([tr.knot_ptr[i] + np.searchsorted(tr.knot_t[tr.knots(i)], time) for i in range(tr.n_vars)], dtype=int)
+        ins = np.array(
+            [tr.knot_ptr[i] + np.searchsorted(tr.knot_t[tr.knots(i)], time) for i in range(tr.n_vars)], dtype=int
+        )
         for i in range(tr.n_vars):
             kt = tr.knot_t[tr.knots(i)]
             if np.any(np.abs(kt - time) < 1e-9):

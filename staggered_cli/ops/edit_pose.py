@@ -89,7 +89,9 @@ def _names_to_targets(doc: Document) -> list[str]:
     return list(src.skeleton.names) if doc.kind == "bvh" else list(src.labels)
 
 
-def offsets(doc: Document, rotate: dict[str, tuple[float, float, float]], translate: dict[str, tuple[float, float, float]]) -> list[np.ndarray | None]:
+def offsets(
+    doc: Document, rotate: dict[str, tuple[float, float, float]], translate: dict[str, tuple[float, float, float]]
+) -> list[np.ndarray | None]:
     """Per-track deltas from ``--rotate JOINT=rx,ry,rz`` (degrees about the
     joint's local axes, one rotation built in XYZ order) and ``--translate
     JOINT=x,y,z`` (file units)."""
@@ -239,7 +241,9 @@ def values_from_motion(doc: Document, motion, frame: int) -> list[np.ndarray]:
             vals[i] = theirs[(tr.kind, n)]
         out.append(vals)
     if missing:
-        raise UsageError(f"the BVH has a different skeleton: it lacks {', '.join(missing[:5])}{'...' if len(missing) > 5 else ''}")
+        raise UsageError(
+            f"the BVH has a different skeleton: it lacks {', '.join(missing[:5])}{'...' if len(missing) > 5 else ''}"
+        )
     return out
 
 

@@ -23,7 +23,9 @@ log = logging.getLogger(__name__)
 _MARGIN_FRAMES = 0.5  # clamped knots keep at least this many frames from a neighbouring knot
 
 
-def select_poses(doc: Document, poses: list[int] | None = None, time_range: tuple[float, float] | None = None, interior: bool = True) -> np.ndarray:
+def select_poses(
+    doc: Document, poses: list[int] | None = None, time_range: tuple[float, float] | None = None, interior: bool = True
+) -> np.ndarray:
     """Boolean mask (K,) of the poses an edit applies to.
 
     ``poses`` are indices as ``info`` reports them; ``time_range`` keeps poses
@@ -83,7 +85,9 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> T
     try:
         warped = with_knot_times(tr, moved)
     except KnotOrderError as exc:
-        raise KnotOrderError(f"{exc}: the timing change is too large for the neighbouring knots (use --clamp to stop short)") from None
+        raise KnotOrderError(
+            f"{exc}: the timing change is too large for the neighbouring knots (use --clamp to stop short)"
+        ) from None
     new_refine = refine + _per_pose(tr, shift, K)
     new_refine[np.abs(new_refine) < 1e-12] = 0.0
     # the editing knots go back to t_k with the value the warped motion has there
@@ -97,7 +101,9 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> T
     try:
         return restructure(warped, *knots)
     except KnotOrderError as exc:
-        raise KnotOrderError(f"{exc}: the new refinement would cross the pose's own editing knot or a neighbour (use --clamp)") from None
+        raise KnotOrderError(
+            f"{exc}: the new refinement would cross the pose's own editing knot or a neighbour (use --clamp)"
+        ) from None
 
 
 def _per_pose(tr: Track, shift: np.ndarray, K: int) -> np.ndarray:
@@ -108,7 +114,9 @@ def _per_pose(tr: Track, shift: np.ndarray, K: int) -> np.ndarray:
     return out
 
 
-def _clamped_shift(tr: Track, refine: np.ndarray, shift: np.ndarray, pose_t: np.ndarray, var: np.ndarray, ft: float) -> np.ndarray:
+def _clamped_shift(
+    tr: Track, refine: np.ndarray, shift: np.ndarray, pose_t: np.ndarray, var: np.ndarray, ft: float
+) -> np.ndarray:
     """Shrink each (pose, variable) shift so its knots stay inside the gap
     between the neighbouring poses' knots, and so the extreme knot does not
     cross ``t_k`` (where the editing knot returns)."""
@@ -249,9 +257,8 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
     if k in (0, K - 1):
         raise UsageError("the first and last pose pin the clip's ends and cannot be retimed")
     if not np.isfinite(new_time) or not doc.pose_t[k - 1] < new_time < doc.pose_t[k + 1]:
-        raise UsageError(
-            f"pose {k} can move only between its neighbours ({doc.pose_t[k - 1]:.4f} s and {doc.pose_t[k + 1]:.4f} s), got {new_time}"
-        )
+        lo, hi = doc.pose_t[k - 1], doc.pose_t[k + 1]
+        raise UsageError(f"pose {k} can move only between its neighbours ({lo:.4f} s and {hi:.4f} s), got {new_time}")
     dt = new_time - doc.pose_t[k]
     tracks = []
     for tr in doc.tracks:

@@ -1,0 +1,2 @@
+"""The command line: the click group (``main``), shared options (``options``)
+and one thin module per command."""

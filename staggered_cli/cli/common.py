@@ -1,0 +1,109 @@
+"""Helpers shared by the commands that read and write staggered-pose documents,
+and parsers for the small option languages (``A:B`` ranges, ``J=x,y,z``)."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from ..errors import DataError, StaggeredError
+from .options import check_output, document_format, emit, load_document
+
+
+def read_document(path: str):
+    """The :class:`~staggered_cli.document.Document` in ``path`` (``-``: stdin)."""
+    from ..document import from_parts
+    from ..io.files import display_name
+
+    manifest, arrays = load_document(path)
+    try:
+        return from_parts(manifest, arrays)
+    except StaggeredError as err:
+        raise err.with_source(display_name(path)) from None
+
+
+def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
+    """Serialize ``doc`` and write it atomically (or to stdout)."""
+    from ..document import to_parts
+    from ..io.document import document_bytes
+
+    manifest, arrays = to_parts(doc)
+    emit(output, document_bytes(manifest, arrays, document_format(fmt, output)), force)
+
+
+def write_motion(motion, output: str, force: bool) -> None:
+    """Write a BvhMotion as BVH or a MarkerMotion as C3D."""
+    from ..motion import BvhMotion
+
+    if isinstance(motion, BvhMotion):
+        from ..io.bvh import bvh_bytes
+
+        emit(output, bvh_bytes(motion), force)
+    else:
+        from ..io.c3d import c3d_bytes
+
+        emit(output, c3d_bytes(motion), force)
+
+
+def finite(value: str, what: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a number", param_hint=what) from None
+    if not math.isfinite(x):
+        raise click.BadParameter(f"{value!r} is not a finite number", param_hint=what)
+    return x
+
+
+def time_range(value: str | None, what: str) -> tuple[float, float] | None:
+    """``'A:B'`` seconds -> (A, B); empty sides mean the clip's ends."""
+    if value is None:
+        return None
+    a, sep, b = value.partition(":")
+    if not sep:
+        raise click.BadParameter(f"expected A:B seconds, got {value!r}", param_hint=what)
+    lo = finite(a, what) if a.strip() else -math.inf
+    hi = finite(b, what) if b.strip() else math.inf
+    if lo > hi:
+        raise click.BadParameter(f"A must not exceed B in {value!r}", param_hint=what)
+    return lo, hi
+
+
+def int_list(value: str | None, what: str) -> list[int] | None:
+    if value is None:
+        return None
+    try:
+        out = [int(x) for x in value.split(",") if x.strip()]
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated pose indices, got {value!r}", param_hint=what) from None
+    if not out:
+        raise click.BadParameter("no pose index given", param_hint=what)
+    return out
+
+
+def name_list(value: str | None) -> list[str] | None:
+    if value is None:
+        return None
+    return [x.strip() for x in value.split(",") if x.strip()] or None
+
+
+def triples(values: tuple[str, ...], what: str) -> dict[str, tuple[float, float, float]]:
+    """``('LeftArm=0,0,20', ...)`` -> {'LeftArm': (0, 0, 20)}."""
+    out: dict[str, tuple[float, float, float]] = {}
+    for item in values:
+        name, sep, rest = item.rpartition("=")
+        parts = rest.split(",")
+        if not sep or not name or len(parts) != 3:
+            raise click.BadParameter(f"expected JOINT=x,y,z, got {item!r}", param_hint=what)
+        out[name] = tuple(finite(p, what) for p in parts)  # type: ignore[assignment]
+    return out
+
+
+def pose_mask(doc, poses: str | None, time: str | None):
+    from ..ops.timing import select_poses
+
+    return select_poses(doc, int_list(poses, "--poses"), time_range(time, "--time"))
+
+
+__all__ = ["check_output", "read_document", "write_document", "write_motion", "DataError"]

@@ -1,0 +1,51 @@
+"""``staggered cull``: keep the highest-priority poses; the motion does not change."""
+
+from __future__ import annotations
+
+import click
+
+from .common import check_output, finite, int_list, read_document, time_range, write_document
+from .options import force_option, format_option, input_argument, output_option
+
+
+@click.command("cull")
+@input_argument
+@click.option("--keep", metavar="N|P%", help="Keep the N (or P percent) highest-priority poses.")
+@click.option("--interval", metavar="A:B", help="Keep the poses between A and B seconds.")
+@click.option("--select", metavar="K,K,...", help="Keep these pose indices (as `info` lists them).")
+@click.option(
+    "--add-time", "add_times", metavar="T", multiple=True, help="Add an unrefined pose at T seconds (repeatable)."
+)
+@click.option(
+    "--ignore-contacts",
+    is_flag=True,
+    help="Cull by priority alone (by default poses on contact starts and ends are kept).",
+)
+@output_option
+@force_option
+@format_option
+def cull(input_path, keep, interval, select, add_times, ignore_contacts, output, force, fmt):
+    """Keep a subset of the poses of document FILE (first and last always).
+
+    The criteria combine; the displacement maps are refitted so that the
+    baked motion is unchanged.
+    """
+    from ..ops.cull import add_pose, choose, keep_poses
+
+    check_output(output, force)
+    times = [finite(t, "--add-time") for t in add_times]
+    doc = read_document(input_path)
+    if keep is not None or interval is not None or select is not None:
+        mask = choose(
+            doc,
+            keep=keep,
+            interval=time_range(interval, "--interval"),
+            select=int_list(select, "--select"),
+            ignore_contacts=ignore_contacts,
+        )
+        doc = keep_poses(doc, mask)
+    elif not times:
+        raise click.UsageError("say what to keep: --keep, --interval, --select, or --add-time")
+    for t in times:
+        doc = add_pose(doc, t)
+    write_document(doc, output, fmt, force)

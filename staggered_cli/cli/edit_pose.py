@@ -1,0 +1,112 @@
+"""``staggered edit-pose``: change a pose's geometry or time, keeping the detail."""
+
+from __future__ import annotations
+
+import click
+
+from .common import check_output, finite, name_list, read_document, triples, write_document
+from .options import force_option, format_option, input_argument, output_option
+
+
+@click.command("edit-pose")
+@input_argument
+@click.option("--pose", "pose", required=True, type=int, help="Pose index, as `info --json` reports it.")
+@click.option(
+    "--on",
+    "on",
+    type=click.Choice(["true", "extreme"]),
+    default="true",
+    show_default=True,
+    help="Edit the true pose at t_k, or the non-staggered pose (the extreme values).",
+)
+@click.option(
+    "--rotate",
+    multiple=True,
+    metavar="JOINT=rx,ry,rz",
+    help="Rotate by degrees about the joint's local axes (XYZ order).",
+)
+@click.option(
+    "--translate",
+    multiple=True,
+    metavar="JOINT=x,y,z",
+    help="Translate a joint with position channels (or a marker), file units.",
+)
+@click.option(
+    "--exaggerate", metavar="W", help="Scale the pose's difference from a reference pose by W (1 = unchanged)."
+)
+@click.option(
+    "--relative-to",
+    default="average",
+    show_default=True,
+    metavar="prev|next|average|K",
+    help="Reference pose for --exaggerate.",
+)
+@click.option("--joints", metavar="A,B", help="Restrict --exaggerate and --from-bvh to these joints.")
+@click.option("--subtree", is_flag=True, help="With --joints: include their descendants.")
+@click.option(
+    "--from-bvh", "from_bvh", metavar="FILE", help="Set the pose from a frame of a BVH with the same skeleton."
+)
+@click.option("--frame", type=int, default=None, help="Frame of --from-bvh (0-based).")
+@click.option("--time", "new_time", metavar="T", help="Move the pose to T seconds.")
+@click.option("--shift", metavar="DT", help="Move the pose by DT seconds.")
+@output_option
+@force_option
+@format_option
+def edit_pose(
+    input_path,
+    pose,
+    on,
+    rotate,
+    translate,
+    exaggerate,
+    relative_to,
+    joints,
+    subtree,
+    from_bvh,
+    frame,
+    new_time,
+    shift,
+    output,
+    force,
+    fmt,
+):
+    """Edit pose K of document FILE; the motion changes only between its neighbours."""
+    from ..ops import edit_pose as ops
+    from ..ops.timing import retime_pose
+
+    check_output(output, force)
+    rot = triples(rotate, "--rotate")
+    tra = triples(translate, "--translate")
+    w = finite(exaggerate, "--exaggerate") if exaggerate is not None else None
+    if new_time is not None and shift is not None:
+        raise click.UsageError("give --time or --shift, not both")
+    if (from_bvh is None) != (frame is None):
+        raise click.UsageError("--from-bvh and --frame go together")
+    if not (rot or tra or w is not None or from_bvh or new_time is not None or shift is not None):
+        raise click.UsageError("nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --time or --shift")
+    doc = read_document(input_path)
+    from ..document import check_pose_index
+
+    k = check_pose_index(doc, pose)
+    values = None
+    if from_bvh is not None:
+        from .options import load_input
+
+        other = load_input(from_bvh)
+        values = ops.values_from_motion(doc, other, frame)
+    doc = ops.edit_pose(
+        doc,
+        k,
+        on=on,
+        rotate=rot,
+        translate=tra,
+        exaggerate=w,
+        relative_to=relative_to,
+        joints=name_list(joints),
+        subtree=subtree,
+        values=values,
+    )
+    if new_time is not None or shift is not None:
+        t = finite(new_time, "--time") if new_time is not None else doc.pose_t[k] + finite(shift, "--shift")
+        doc = retime_pose(doc, k, t)
+    write_document(doc, output, fmt, force)

@@ -1,0 +1,167 @@
+"""The ``staggered`` command group: global options, lazy subcommands and the
+one error path.
+
+Error path (the only place that turns exceptions into exit codes):
+
+* :class:`~staggered_cli.errors.StaggeredError` -> ``staggered: <message>``
+  on stderr, exit code ``err.exit_code`` (1 for data errors, 2 for usage);
+* click's own usage errors -> click's message, exit 2;
+* ``KeyboardInterrupt`` -> exit 130;
+* a closed stdout pipe (``BrokenPipeError``) -> exit 141 (128 + SIGPIPE)
+  without a message, as other Unix tools do;
+* anything else is a bug: a one-line ``internal error`` message, exit 1.
+
+``--debug`` lets the exception through so that Python prints the traceback.
+
+Subcommands are imported only when used (``COMMANDS`` maps a name to
+``"module:function"``), so ``staggered --help`` and shell completion do not
+import NumPy, SciPy or Matplotlib.  Completion uses click's mechanism::
+
+    eval "$(_STAGGERED_COMPLETE=bash_source staggered)"   # bash
+    eval "$(_STAGGERED_COMPLETE=zsh_source staggered)"    # zsh
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import StaggeredError
+
+PROG = "staggered"
+
+#: command name -> "module:attribute" of its click command.
+COMMANDS: dict[str, str] = {
+    "info": "staggered_cli.cli.info:info",
+    "cull": "staggered_cli.cli.cull:cull",
+    "edit-pose": "staggered_cli.cli.edit_pose:edit_pose",
+    "succession": "staggered_cli.cli.succession:succession",
+    "randomize": "staggered_cli.cli.randomize:randomize",
+    "bake": "staggered_cli.cli.bake:bake",
+}
+
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141
+
+log = logging.getLogger("staggered_cli")
+
+
+class LazyGroup(click.Group):
+    """A group whose subcommands are imported on first use."""
+
+    def __init__(self, *args, lazy_commands: dict[str, str] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lazy_commands = dict(lazy_commands or {})
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(super().list_commands(ctx)) | set(self.lazy_commands))
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in self.lazy_commands:
+            module_name, attr = self.lazy_commands[cmd_name].split(":")
+            command = getattr(importlib.import_module(module_name), attr)
+            if not isinstance(command, click.Command):
+                raise TypeError(f"{self.lazy_commands[cmd_name]} is not a click command")
+            return command
+        return super().get_command(ctx, cmd_name)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(line.strip() for line in str(text).splitlines() if line.strip())
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush into the
+    closed pipe does not print 'Exception ignored ... BrokenPipeError'."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass  # stdout is not a real file (tests): nothing will be flushed into a pipe
+
+
+class StaggeredGroup(LazyGroup):
+    """The root group: maps every exception to a message and an exit code."""
+
+    def invoke(self, ctx: click.Context):
+        debug = bool(ctx.params.get("debug"))
+        try:
+            result = super().invoke(ctx)
+            if sys.stdout is not None:
+                sys.stdout.flush()  # a closed pipe shows up here, not at exit
+            return result
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+            raise
+        except StaggeredError as err:
+            if debug:
+                raise
+            click.echo(f"{PROG}: {_one_line(str(err))}", err=True)
+            ctx.exit(err.exit_code)
+        except KeyboardInterrupt:
+            click.echo(f"\n{PROG}: interrupted", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
+        except BrokenPipeError:
+            _silence_stdout()
+            ctx.exit(EXIT_BROKEN_PIPE)
+        except Exception as err:
+            if debug:
+                raise
+            click.echo(
+                f"{PROG}: internal error: {type(err).__name__}: {_one_line(str(err))} "
+                "(run with --debug for the traceback)",
+                err=True,
+            )
+            ctx.exit(1)
+
+
+class _StderrHandler(logging.Handler):
+    """Logs to whatever ``sys.stderr`` is at the time of the call (so that
+    CliRunner's captured stream is used in tests)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+        except Exception:  # logging must never take the command down
+            self.handleError(record)
+
+
+def configure_logging(verbose: int, quiet: int) -> None:
+    """WARNING by default; each -v one level more (INFO, DEBUG), -q one less."""
+    level = min(max(logging.WARNING - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter(f"{PROG}: %(levelname)s: %(message)s"))
+    log.handlers[:] = [handler]
+    log.setLevel(level)
+    log.propagate = False
+
+
+@click.group(
+    cls=StaggeredGroup,
+    lazy_commands=COMMANDS,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+@click.version_option(__version__, "--version", prog_name=PROG, message="%(prog)s %(version)s")
+@click.option("-v", "--verbose", count=True, help="More messages on stderr (repeat for debug output).")
+@click.option("-q", "--quiet", count=True, help="Fewer messages on stderr: errors only.")
+@click.option("--debug", is_flag=True, help="Show the Python traceback of an error.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool) -> None:
+    """Editable staggered poses from dense motion capture (BVH, C3D).
+
+    FILE arguments accept '-' for standard input and '-o -' writes to
+    standard output. Exit codes: 0 success, 1 bad data, 2 bad usage.
+    """
+    configure_logging(verbose, quiet)
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+def main() -> None:
+    """Entry point of ``python -m staggered_cli``."""
+    cli(prog_name=PROG)

@@ -1,0 +1,170 @@
+"""The options every command shares, and the two helpers that move data in
+and out of a command: :func:`load_input` and :func:`emit`.
+
+Decorated commands receive these parameters:
+
+==================  ===========================  ==============================
+decorator           parameter                    value
+==================  ===========================  ==============================
+``input_argument``  ``input_path: str``          a path, or ``-`` for stdin
+``output_option``   ``output: str``              a path, or ``-`` (the default)
+                                                 for stdout
+``force_option``    ``force: bool``              overwrite an existing output
+``format_option``   ``fmt: str | None``          ``npz``, ``json`` or None
+                                                 (then :func:`document_format`
+                                                 picks by the output's name)
+==================  ===========================  ==============================
+
+Nothing heavy is imported here at module level, so that ``staggered --help``
+starts fast.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from ..errors import DataError, StaggeredError, UsageError
+from ..io import files
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from ..motion import BvhMotion, MarkerMotion
+
+    Document = tuple[dict[str, Any], dict[str, np.ndarray]]
+
+STDIO = files.STDIO
+
+_BOM = b"\xef\xbb\xbf"
+
+input_argument = click.argument(
+    "input_path",
+    metavar="FILE",
+    type=click.Path(allow_dash=True, path_type=str),
+)
+
+output_option = click.option(
+    "-o",
+    "--output",
+    "output",
+    metavar="FILE",
+    type=click.Path(allow_dash=True, path_type=str),
+    default=STDIO,
+    show_default=True,
+    help="Output file, or '-' for standard output.",
+)
+
+force_option = click.option(
+    "--force",
+    is_flag=True,
+    default=False,
+    help="Overwrite the output file if it exists.",
+)
+
+format_option = click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["npz", "json"]),
+    default=None,
+    help="Document format. Default: json when the output name ends in .json, else npz.",
+)
+
+
+def document_format(fmt: str | None, output: str) -> str:
+    """The document format to write: ``fmt`` if given, else ``json`` for an
+    output ending in ``.json`` and ``npz`` for anything else (stdout included)."""
+    if fmt is not None:
+        return fmt
+    return "json" if output != STDIO and output.lower().endswith(".json") else "npz"
+
+
+def detect_kind(data: bytes) -> str:
+    """``'document'``, ``'c3d'`` or ``'bvh'`` from the content of a file.
+
+    Extensions are not looked at (SPEC section 1).  Raises ``ValueError`` for
+    anything else; :func:`load_input` turns that into a ``DataError``.
+    """
+    from ..io.document import is_document
+
+    if is_document(data):
+        return "document"
+    if len(data) >= 2 and data[1] == 0x50:  # C3D header: parameter-section key 0x50 at byte 1
+        return "c3d"
+    text = data[3:64] if data.startswith(_BOM) else data[:64]
+    if text.lstrip(b" \t\r\n").upper().startswith(b"HIERARCHY"):
+        return "bvh"
+    if not data:
+        raise ValueError("empty file")
+    raise ValueError("not a BVH, C3D or staggered-poses document (unrecognized content)")
+
+
+def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
+    """Read ``path`` (``-`` for stdin) and parse it by content.
+
+    Returns a :class:`~staggered_cli.motion.BvhMotion`, a
+    :class:`~staggered_cli.motion.MarkerMotion`, or a document as
+    ``(manifest, arrays)``.  Errors are ``DataError`` naming the file.
+    """
+    data, name = files.read_bytes(path)
+    try:
+        kind = detect_kind(data)
+    except ValueError as err:
+        raise DataError(str(err), source=name) from None
+    try:
+        if kind == "document":
+            from ..io.document import parse_document
+
+            return parse_document(data, name)
+        if kind == "c3d":
+            from ..io.c3d import read_c3d
+
+            return read_c3d(path, data=data, name=name)
+        from ..io.bvh import read_bvh
+
+        return read_bvh(path, data=data, name=name)
+    except StaggeredError as err:
+        err.with_source(name)
+        raise
+
+
+def load_document(path: str) -> Document:
+    """Like :func:`load_input` but insists on a document: a BVH or C3D given
+    where a document is needed is a ``UsageError`` that says what to run."""
+    obj = load_input(path)
+    if isinstance(obj, tuple):
+        return obj
+    raise UsageError(
+        "is motion capture, not a staggered-poses document: run `staggered extract` on it first",
+        source=files.display_name(path),
+    )
+
+
+def check_output(output: str, force: bool) -> None:
+    """Refuse an output that exists (without ``force``) before doing any work."""
+    files.check_output(output, force)
+
+
+def _is_binary(data: bytes) -> bool:
+    return b"\0" in data[:8192]
+
+
+def emit(path: str, data: bytes, force: bool) -> None:
+    """Write ``data`` to ``path`` atomically, or to stdout for ``-``.
+
+    An existing file is refused without ``force`` (``UsageError`` naming it).
+    Binary data (an NPZ document, a C3D) is refused when stdout is a terminal.
+    """
+    if path == STDIO:
+        out = sys.stdout
+        if _is_binary(data) and out is not None and out.isatty():
+            from ..io.document import is_document
+
+            if is_document(data):
+                hint = "refusing to write a binary (NPZ) document to the terminal: use -o FILE or --format json"
+            else:
+                hint = "refusing to write binary data to the terminal: use -o FILE or redirect standard output"
+            raise UsageError(hint, source=files.STDOUT_NAME)
+    files.write_atomic(path, data, force)

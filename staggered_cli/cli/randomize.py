@@ -1,0 +1,35 @@
+"""``staggered randomize``: random timing offsets, reproducible by seed."""
+
+from __future__ import annotations
+
+import click
+
+from .common import check_output, finite, name_list, pose_mask, read_document, write_document
+from .options import force_option, format_option, input_argument, output_option
+
+
+@click.command("randomize")
+@input_argument
+@click.option("--tau", required=True, metavar="T", help="Bound of the offsets in seconds: r += uniform(-T, T).")
+@click.option("--seed", required=True, type=int, help="Random seed (the same seed gives the same document).")
+@click.option("--joints", metavar="A,B", help="Only these joints or markers (default: all).")
+@click.option("--subtree", is_flag=True, help="With --joints: include their descendants.")
+@click.option("--poses", metavar="K,K,...", help="Only these poses (default: all but the first and last).")
+@click.option("--time", "time", metavar="A:B", help="Only the poses between A and B seconds.")
+@click.option("--clamp", is_flag=True, help="Stop knots short of their neighbours instead of refusing.")
+@output_option
+@force_option
+@format_option
+def randomize(input_path, tau, seed, joints, subtree, poses, time, clamp, output, force, fmt):
+    """Add random offsets to the refinements of FILE's poses."""
+    from ..ops.timing import randomize as op
+
+    check_output(output, force)
+    t = finite(tau, "--tau")
+    if t < 0:
+        raise click.BadParameter(f"must not be negative, got {tau}", param_hint="--tau")
+    if seed < 0:
+        raise click.BadParameter(f"must not be negative, got {seed}", param_hint="--seed")
+    doc = read_document(input_path)
+    doc = op(doc, t, seed, joints=name_list(joints), subtree=subtree, poses=pose_mask(doc, poses, time), clamp=clamp)
+    write_document(doc, output, fmt, force)

@@ -1,0 +1,217 @@
+"""Raw bytes in and out: the only place that opens paths, stdin and stdout.
+
+Everything above this module works on ``bytes`` plus a display name, so that
+``-`` (stdin / stdout) and real paths behave the same, and so that every
+error names the file it is about.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import stat
+import sys
+import tempfile
+
+from ..errors import DataError, StaggeredError, UsageError
+
+STDIO = "-"
+STDIN_NAME = "<stdin>"
+STDOUT_NAME = "<stdout>"
+
+#: Largest input read, in bytes (2 GiB): bigger files are refused before reading.
+MAX_INPUT_BYTES = 2 << 30
+
+_CHUNK = 1 << 20
+
+
+def display_name(path: str) -> str:
+    """How ``path`` is named in messages (``-`` becomes ``<stdin>``)."""
+    return STDIN_NAME if path == STDIO else str(path)
+
+
+def _too_big(size: int, limit: int) -> str:
+    return f"input is {size:,} bytes, more than the limit of {limit:,} bytes"
+
+
+def _read_stream(stream, limit: int, name: str) -> bytes:
+    """Read ``stream`` to its end, refusing more than ``limit`` bytes."""
+    chunks: list[bytes] = []
+    total = 0
+    while True:
+        chunk = stream.read(min(_CHUNK, limit + 1 - total))
+        if not chunk:
+            break
+        chunks.append(chunk)
+        total += len(chunk)
+        if total > limit:
+            raise DataError(f"input is more than the limit of {limit:,} bytes", source=name)
+    return b"".join(chunks)
+
+
+def _os_reason(err: OSError) -> str:
+    if isinstance(err, FileNotFoundError):
+        return "no such file"
+    if isinstance(err, IsADirectoryError):
+        return "is a directory, not a file"
+    if isinstance(err, PermissionError):
+        return "permission denied"
+    if isinstance(err, NotADirectoryError):
+        return "a component of the path is not a directory"
+    return err.strerror or type(err).__name__
+
+
+def read_bytes(path: str, limit: int = MAX_INPUT_BYTES) -> tuple[bytes, str]:
+    """The whole content of ``path`` and the name to show for it.
+
+    Parameters
+    ----------
+    path : str
+        A file path, or ``-`` for standard input (named ``<stdin>``).
+    limit : int
+        Largest size accepted, in bytes.  A regular file larger than this is
+        refused before anything is read; a stream is refused as soon as it
+        passes it.
+
+    Raises
+    ------
+    DataError
+        Missing, unreadable, a directory, or too large; the error names the path.
+    UsageError
+        ``-`` while standard input is a terminal (nothing was piped in).
+    """
+    name = display_name(path)
+    if path == STDIO:
+        stdin = sys.stdin
+        if stdin is None:
+            raise UsageError("no standard input to read from", source=name)
+        if stdin.isatty():
+            raise UsageError("standard input is a terminal: pipe data in or give a FILE", source=name)
+        return _read_stream(getattr(stdin, "buffer", stdin), limit, name), name
+    try:
+        st = os.stat(path)
+        if stat.S_ISDIR(st.st_mode):
+            raise IsADirectoryError(errno.EISDIR, "is a directory", path)
+        if stat.S_ISREG(st.st_mode) and st.st_size > limit:
+            raise DataError(_too_big(st.st_size, limit), source=name)
+        with open(path, "rb") as f:
+            # not only regular files: FIFOs and process substitution too
+            return _read_stream(f, limit, name), name
+    except OSError as err:
+        raise DataError(f"cannot read: {_os_reason(err)}", source=name) from err
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _is_stream(path: str) -> bool:
+    """An existing FIFO or device (``/dev/null``, ``/dev/stdout``, a process
+    substitution): written in place, since it cannot be replaced by a rename
+    and overwriting it clobbers nothing."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISFIFO(mode) or stat.S_ISCHR(mode) or stat.S_ISSOCK(mode)
+
+
+def check_output(path: str, force: bool) -> None:
+    """Refuse early, before any work, an output that cannot be written.
+
+    ``UsageError`` when ``path`` exists and ``force`` is false, when it is a
+    directory, or when its directory does not exist.  ``-`` always passes.
+    """
+    if path == STDIO or _is_stream(path):
+        return
+    if os.path.isdir(path):
+        raise UsageError("output is a directory", source=path)
+    if os.path.lexists(path) and not force:
+        raise UsageError("output exists (use --force to overwrite it)", source=path)
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UsageError(f"output directory {os.path.dirname(path) or parent!r} does not exist", source=path)
+
+
+def write_stdout(data: bytes) -> None:
+    """Write ``data`` to standard output as bytes and flush."""
+    out = sys.stdout
+    buf = getattr(out, "buffer", None)
+    if buf is None:  # a text-only replacement of stdout
+        out.write(data.decode("utf-8", errors="surrogateescape"))
+    else:
+        out.flush()  # keep order with text already written
+        buf.write(data)
+        buf.flush()
+    out.flush()
+
+
+def write_atomic(path: str, data: bytes, force: bool) -> None:
+    """Write ``data`` to ``path`` so that it is either complete or not there.
+
+    The bytes go to a temporary file in the same directory, are flushed and
+    fsync'd, then renamed over ``path``.  Without ``force`` an existing
+    ``path`` is refused (``UsageError``), atomically: the final step is a hard
+    link that fails if the name was taken meanwhile.  ``-`` writes to
+    standard output; an existing FIFO or device is written in place.  On any failure the temporary file is removed and
+    ``path`` is left as it was.
+    """
+    if path == STDIO:
+        write_stdout(data)
+        return
+    if _is_stream(path):
+        try:
+            with open(path, "wb") as f:
+                f.write(data)
+        except OSError as err:
+            raise StaggeredError(f"cannot write: {_os_reason(err)}", source=path) from err
+        return
+    check_output(path, force)
+    directory = os.path.dirname(os.path.abspath(path))
+    base = os.path.basename(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{base}.", suffix=".tmp", dir=directory)
+    except OSError as err:
+        raise StaggeredError(f"cannot write: {_os_reason(err)}", source=path) from err
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())
+        if force:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise UsageError("output exists (use --force to overwrite it)", source=path) from None
+            except OSError:  # a filesystem without hard links
+                if os.path.lexists(path):
+                    raise UsageError("output exists (use --force to overwrite it)", source=path) from None
+                os.replace(tmp, path)
+        _fsync_directory(directory)
+    except OSError as err:
+        raise StaggeredError(f"cannot write: {_os_reason(err)}", source=path) from err
+    finally:
+        if os.path.lexists(tmp):
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass  # the rename or link succeeded; nothing else to clean up
+
+
+def _fsync_directory(directory: str) -> None:
+    """Make the rename durable; not every platform can open a directory."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some filesystems refuse fsync on a directory; the data itself is synced
+    finally:
+        os.close(fd)

@@ -1,0 +1,436 @@
+"""The document byte layer (SPEC section 7): exact round trips, deterministic
+bytes, and refusal of malformed or hostile files without unpickling,
+inflating or allocating what they declare."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import pickle
+import struct
+import time
+import tracemalloc
+import warnings
+import zipfile
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from staggered_cli.errors import DataError
+from staggered_cli.io import document
+from staggered_cli.io.document import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    MANIFEST_MEMBER,
+    document_bytes,
+    is_document,
+    parse_document,
+)
+
+NAME = "walk.stag"
+
+
+def sample():
+    rng = np.random.default_rng(7)
+    manifest = {
+        "frame_time": 0.0083333,
+        "source": {"name": "walk.bvh", "sha256": "ab" * 32},
+        "names": ["Hips", "LeftUpLeg", "Épaule"],
+        "poses": [{"t": 0.1, "priority": 1e-300}, {"t": 1 / 3, "priority": None}],
+        "flag": True,
+        "count": 3,
+    }
+    arrays = {
+        "pose_t": np.array([0.0, -0.0, 0.1, 1 / 3, 5e-324, 1e308, -np.inf, np.inf, np.nan]),
+        "track0/knot_v": rng.normal(size=(6, 4, 3)),
+        "track1.knot_q": rng.normal(size=(5, 3, 4)),
+        "knot_ptr": np.array([0, 3, 7, 12], dtype=np.int64),
+        "big_ints": np.array([np.iinfo(np.int64).min, -1, np.iinfo(np.int64).max]),
+        "editing": np.array([[True, False], [False, True]]),
+        "c3d_bytes": np.frombuffer(b"\x00\x50\xff" * 5, dtype=np.uint8),
+        "empty": np.zeros((0, 3)),
+        "scalar": np.array(2.5),
+        "fortran": np.asfortranarray(rng.normal(size=(3, 5))),
+        "big_endian": np.arange(4, dtype=">f8"),
+    }
+    return manifest, arrays
+
+
+def assert_same(arrays, back):
+    assert sorted(back) == sorted(arrays)
+    for key, arr in arrays.items():
+        got = back[key]
+        assert got.shape == arr.shape, key
+        assert got.dtype == arr.dtype.newbyteorder("="), key
+        assert np.array_equal(got, arr, equal_nan=arr.dtype.kind == "f"), key
+        if arr.dtype.kind == "f":
+            assert np.array_equal(np.signbit(got), np.signbit(arr)), key  # -0.0 kept
+        assert got.flags.writeable and got.flags.c_contiguous, key
+
+
+@pytest.mark.parametrize("fmt", ["npz", "json"])
+def test_round_trip_is_exact(fmt):
+    manifest, arrays = sample()
+    data = document_bytes(manifest, arrays, fmt)
+    back_manifest, back = parse_document(data, NAME)
+    assert back_manifest == manifest
+    assert_same(arrays, back)
+    # and again: bytes -> document -> bytes is the identity
+    assert document_bytes(back_manifest, back, fmt) == data
+
+
+@pytest.mark.parametrize("fmt", ["npz", "json"])
+def test_bytes_are_deterministic(fmt):
+    manifest, arrays = sample()
+    first = document_bytes(manifest, arrays, fmt)
+    shuffled_arrays = dict(reversed(list(arrays.items())))
+    shuffled_manifest = dict(reversed(list(manifest.items())))
+    assert document_bytes(shuffled_manifest, shuffled_arrays, fmt) == first
+    time.sleep(1.1)  # zip timestamps are fixed, not the clock
+    assert document_bytes(manifest, arrays, fmt) == first
+
+
+def test_npz_is_a_plain_numpy_archive():
+    manifest, arrays = sample()
+    data = document_bytes(manifest, arrays, "npz")
+    with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+        assert np.array_equal(npz["track0/knot_v"], arrays["track0/knot_v"])
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        names = zf.namelist()
+        assert names == sorted(names)
+        envelope = json.loads(zf.read(MANIFEST_MEMBER))
+    assert envelope["format"] == FORMAT_NAME and envelope["version"] == FORMAT_VERSION
+    assert envelope["arrays"]["knot_ptr"] == {"dtype": "int64", "shape": [4]}
+
+
+def test_json_is_standard_json_with_sorted_keys():
+    manifest, arrays = sample()
+    text = document_bytes(manifest, arrays, "json").decode("utf-8")
+    # standard JSON: no bare NaN / Infinity tokens
+    parsed = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard constant {c}"))
+    assert list(parsed) == sorted(parsed)
+    assert list(parsed["arrays"]) == sorted(parsed["arrays"])
+    assert parsed["arrays"]["pose_t"]["values"][-3:] == ["-Infinity", "Infinity", "NaN"]
+    assert parsed["arrays"]["pose_t"]["values"][1] == 0.0 and "-0.0" in text
+    # one row of the last axis per line
+    assert "\n    0, 3, 7, 12\n" not in text
+    assert any(line.strip().count(",") == 3 for line in text.splitlines())
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    arr=hnp.arrays(
+        dtype=st.sampled_from([np.float64, np.int64, np.bool_, np.uint8]),
+        shape=hnp.array_shapes(min_dims=0, max_dims=4, min_side=0, max_side=5),
+    ),
+    fmt=st.sampled_from(["npz", "json"]),
+)
+def test_round_trip_property(arr, fmt):
+    manifest, back = parse_document(document_bytes({"k": 1}, {"a": arr}, fmt), NAME)
+    assert manifest == {"k": 1}
+    assert_same({"a": arr}, back)
+
+
+def test_writer_refuses_what_a_document_cannot_hold():
+    with pytest.raises(ValueError, match="float32"):
+        document_bytes({}, {"a": np.zeros(2, dtype=np.float32)}, "npz")
+    with pytest.raises(ValueError, match="object"):
+        document_bytes({}, {"a": np.array([{}], dtype=object)}, "npz")
+    with pytest.raises(ValueError, match="non-finite"):
+        document_bytes({"x": float("nan")}, {}, "json")
+    with pytest.raises(ValueError, match="bad array name"):
+        document_bytes({}, {"../evil": np.zeros(1)}, "npz")
+    with pytest.raises(ValueError, match="unknown document format"):
+        document_bytes({}, {}, "yaml")
+    # NumPy scalars in the manifest are written as plain numbers
+    manifest, _ = parse_document(document_bytes({"n": np.int64(3), "x": np.float64(0.5)}, {}, "json"), NAME)
+    assert manifest == {"n": 3, "x": 0.5}
+
+
+def test_is_document():
+    assert is_document(document_bytes({}, {}, "npz"))
+    assert is_document(document_bytes({}, {}, "json"))
+    assert is_document(b"\xef\xbb\xbf \n{")
+    assert not is_document(b"HIERARCHY\nROOT Hips")
+    assert not is_document(b"")
+    assert not is_document(b"\x02\x50" + bytes(100))
+
+
+# ----------------------------------------------------------------- malformed files
+
+
+def refused(data, *needles, name=NAME):
+    with pytest.raises(DataError) as info:
+        parse_document(data, name)
+    message = str(info.value)
+    assert message.startswith(f"{name}: "), message
+    assert "\n" not in message
+    for needle in needles:
+        assert needle in message, message
+    return message
+
+
+def rezip(members: dict[str, bytes]) -> bytes:
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # zipfile warns on the duplicate names some tests write
+        with zipfile.ZipFile(buf, "w") as zf:
+            for member, data in members.items():
+                zf.writestr(member.split("\0")[0], data)
+    return buf.getvalue()
+
+
+def members_of(data: bytes) -> dict[str, bytes]:
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        return {n: zf.read(n) for n in zf.namelist()}
+
+
+def envelope_of(data: bytes) -> dict:
+    return json.loads(members_of(data)[MANIFEST_MEMBER])
+
+
+@pytest.mark.parametrize("keep", [0.2, 0.5, 0.9, 0.999])
+def test_truncated_npz(keep):
+    data = document_bytes(*sample(), "npz")
+    refused(data[: int(len(data) * keep)], "truncated or corrupt NPZ document")
+
+
+def test_truncated_and_malformed_json():
+    data = document_bytes(*sample(), "json")
+    refused(data[: len(data) // 2], "malformed JSON document", "line")
+    refused(b"{" * 100_000, "malformed JSON document")  # nested too deeply
+    refused(b"{\xff}", "not UTF-8")
+    refused(b"[1, 2]", "not a staggered-poses document")
+
+
+def test_corrupt_member_data_fails_its_crc():
+    data = bytearray(document_bytes({}, {"a": np.arange(100.0)}, "npz"))
+    pos = data.index(np.arange(100.0)[50:51].tobytes())
+    data[pos] ^= 0xFF
+    refused(bytes(data), "corrupt NPZ document", "CRC")
+
+
+@pytest.mark.parametrize("fmt", ["npz", "json"])
+def test_wrong_format_name_and_versions(fmt):
+    def with_envelope(**changes):
+        if fmt == "json":
+            env = json.loads(document_bytes({"m": 1}, {"a": np.zeros(2)}, "json"))
+            env.update(changes)
+            return json.dumps(env).encode()
+        members = members_of(document_bytes({"m": 1}, {"a": np.zeros(2)}, "npz"))
+        env = json.loads(members[MANIFEST_MEMBER])
+        env.update(changes)
+        members[MANIFEST_MEMBER] = json.dumps(env).encode()
+        return rezip(members)
+
+    refused(with_envelope(format="blender-poses"), "not a staggered-poses document", "blender-poses")
+    message = refused(with_envelope(version=FORMAT_VERSION + 1), "newer", "upgrade")
+    assert f"version {FORMAT_VERSION + 1}" in message
+    refused(with_envelope(version="1"), "bad document version")
+    refused(with_envelope(version=0), "bad document version")
+    refused(with_envelope(version=True), "bad document version")
+    refused(with_envelope(manifest=[1]), "no manifest")
+    assert parse_document(with_envelope(), NAME)[0] == {"m": 1}
+
+
+def test_zip_without_manifest_or_with_stray_members():
+    refused(rezip({"a.npy": b"x"}), "no manifest.json")
+    members = members_of(document_bytes({}, {"a": np.zeros(2)}, "npz"))
+    refused(rezip({**members, "evil.py": b"print(1)"}), "unexpected member 'evil.py'")
+    del members["a.npy"]
+    refused(rezip(members), "missing member 'a.npy'")
+
+
+def test_duplicate_members():
+    members = members_of(document_bytes({}, {"a": np.zeros(2)}, "npz"))
+    refused(rezip({**members, "a.npy\0dup": members["a.npy"]}), "duplicate member 'a.npy'")
+
+
+class _Exploit:
+    """Unpickling this would create a marker file."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.mkdir, (self.marker,))
+
+
+def test_pickled_object_array_is_refused_without_running_it(tmp_path):
+    marker = str(tmp_path / "pwned")
+    buf = io.BytesIO()
+    np.save(buf, np.array([_Exploit(marker)], dtype=object), allow_pickle=True)
+    assert b"pwned" in buf.getvalue()
+    members = members_of(document_bytes({}, {"a": np.zeros(1)}, "npz"))
+    members["a.npy"] = buf.getvalue()
+    refused(rezip(members), "array 'a'", "dtype '|O' not allowed")
+    # the same with a manifest that admits the object dtype
+    env = json.loads(members[MANIFEST_MEMBER])
+    env["arrays"]["a"]["dtype"] = "object"
+    members[MANIFEST_MEMBER] = json.dumps(env).encode()
+    refused(rezip(members), "dtype 'object' not allowed")
+    assert not os.path.exists(marker)
+    # the file really is a pickle bomb: the unsafe way would have run it
+    pickle.loads(buf.getvalue()[buf.getvalue().index(b"\x80") :])
+    assert os.path.exists(marker)
+
+
+def _patch_declared_size(data: bytes, member: str, size: int) -> bytes:
+    """Rewrite the uncompressed size of ``member`` in its local header and
+    the central directory (what a zip bomb lies about or boasts of)."""
+    out = bytearray(data)
+    name = member.encode()
+    for sig, size_at, name_len_at, name_at in ((b"PK\x03\x04", 22, 26, 30), (b"PK\x01\x02", 24, 28, 46)):
+        pos = out.find(sig)
+        while pos >= 0:
+            (n,) = struct.unpack_from("<H", out, pos + name_len_at)
+            if bytes(out[pos + name_at : pos + name_at + n]) == name:
+                struct.pack_into("<I", out, pos + size_at, size)
+            pos = out.find(sig, pos + 4)
+    return bytes(out)
+
+
+def _npy_header(n: int) -> bytes:
+    """A .npy version 1.0 header for a float64 array of shape (n,)."""
+    head = b"{'descr': '<f8', 'fortran_order': False, 'shape': (%d,), }" % n
+    head += b" " * (-(10 + len(head) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(head).to_bytes(2, "little") + head
+
+
+def _measure(fn):
+    tracemalloc.start()
+    start = time.perf_counter()
+    try:
+        fn()
+    finally:
+        elapsed = time.perf_counter() - start
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+    return elapsed, peak
+
+
+def test_member_declaring_gigabytes_is_refused_quickly_with_low_memory():
+    data = document_bytes({}, {"a": np.zeros(1000)}, "npz")
+    bomb = _patch_declared_size(data, "a.npy", 0xFFFFFFF0)  # about 4 GiB
+    elapsed, peak = _measure(lambda: refused(bomb, "member 'a.npy' declares 4,294,967,280 bytes"))
+    assert elapsed < 1.0
+    assert peak < 2 << 20
+
+
+def test_deflate_bomb_over_the_limits_is_not_inflated(monkeypatch):
+    # a real bomb: 256 MiB of zeros deflate to about 256 KiB; honest sizes
+    n = 32 << 20
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        env = {"arrays": {"a": {"dtype": "float64", "shape": [n]}}, "format": FORMAT_NAME, "manifest": {}, "version": 1}
+        zf.writestr(MANIFEST_MEMBER, json.dumps(env))
+        with zf.open("a.npy", "w", force_zip64=True) as member:
+            member.write(_npy_header(n))
+            chunk = bytes(1 << 20)
+            for _ in range(n * 8 // len(chunk)):
+                member.write(chunk)
+    bomb = buf.getvalue()
+    assert len(bomb) < 1 << 20
+    monkeypatch.setattr(document, "MAX_ARRAY_BYTES", 64 << 20)
+    elapsed, peak = _measure(lambda: refused(bomb, "over the limit"))
+    assert elapsed < 1.0
+    assert peak < 2 << 20
+
+
+def test_member_lying_small_is_cut_at_its_declared_size():
+    data = document_bytes({}, {"a": np.zeros(1000)}, "npz")
+    members = members_of(data)
+    big = members["a.npy"] + bytes(10 << 20)  # inflates to 10 MiB more than declared
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(MANIFEST_MEMBER, members[MANIFEST_MEMBER])
+        zf.writestr("a.npy", big)
+    liar = _patch_declared_size(buf.getvalue(), "a.npy", len(members["a.npy"]))
+    elapsed, peak = _measure(lambda: refused(liar, "corrupt NPZ document"))
+    assert peak < 4 << 20
+
+
+def test_total_of_members_is_capped(monkeypatch):
+    monkeypatch.setattr(document, "MAX_TOTAL_BYTES", 10_000)
+    refused(document_bytes({}, {"a": np.zeros(800), "b": np.zeros(800)}, "npz"), "total more than the limit")
+    refused(document_bytes({}, {"a": np.zeros(800), "b": np.zeros(800)}, "json"), "total more than the limit")
+
+
+@pytest.mark.parametrize("shape", [[10**6, 10**6], [10**12], [2**62, 2**62, 2**62]])
+def test_absurd_shapes_are_refused_before_allocating(shape):
+    env = {"arrays": {"a": {"dtype": "float64", "shape": shape}}, "format": FORMAT_NAME, "manifest": {}, "version": 1}
+    members = {MANIFEST_MEMBER: json.dumps(env).encode(), "a.npy": document._npy_bytes(np.zeros(1))}
+    elapsed, peak = _measure(lambda: refused(rezip(members), "array 'a'", "over the limit"))
+    assert elapsed < 1.0 and peak < 2 << 20
+    env["arrays"]["a"]["values"] = []
+    elapsed, peak = _measure(lambda: refused(json.dumps(env).encode(), "array 'a'", "over the limit"))
+    assert elapsed < 1.0 and peak < 2 << 20
+
+
+def test_npy_header_must_agree_with_the_manifest():
+    members = members_of(document_bytes({}, {"a": np.zeros(4)}, "npz"))
+    members["a.npy"] = document._npy_bytes(np.zeros(5))
+    refused(rezip(members), "array 'a'", "header says")
+    # a header whose shape matches but whose member is too short for it
+    members["a.npy"] = document._npy_bytes(np.zeros(4))[:-8]
+    refused(rezip(members), "array 'a'", "data bytes")
+    members["a.npy"] = b"not npy at all"
+    refused(rezip(members), "not a .npy member")
+    members["a.npy"] = document._npy_bytes(np.zeros(4)).replace(b"'<f8'", b"'<U2'")
+    refused(rezip(members), "dtype '<U2' not allowed")
+
+
+@pytest.mark.parametrize(
+    ("entry", "needle"),
+    [
+        ({"dtype": "float64", "shape": [1e400]}, "bad shape"),  # 1e400 parses as inf
+        ({"dtype": "float64", "shape": [2.0]}, "bad shape"),
+        ({"dtype": "float64", "shape": [-1]}, "bad shape"),
+        ({"dtype": "float64", "shape": [True]}, "bad shape"),
+        ({"dtype": "float64", "shape": 3}, "bad shape"),
+        ({"dtype": "float64", "shape": [1] * 40}, "bad shape"),
+        ({"dtype": "float32", "shape": [1]}, "dtype 'float32' not allowed"),
+        ({"dtype": "object", "shape": [1]}, "dtype 'object' not allowed"),
+        ({"dtype": "float64", "shape": [2], "values": [1.0]}, "1 values for shape [2]"),
+        ({"dtype": "float64", "shape": [2], "values": [1.0, None]}, "do not fit"),
+        ({"dtype": "float64", "shape": [2], "values": [1.0, "1.5"]}, "do not fit"),
+        ({"dtype": "float64", "shape": [2], "values": [1.0, [2.0]]}, "do not fit"),
+        ({"dtype": "float64", "shape": [2], "values": [1.0, True]}, "do not fit"),
+        ({"dtype": "int64", "shape": [2], "values": [1, 2.0]}, "do not fit"),
+        ({"dtype": "int64", "shape": [1], "values": [2**64]}, "do not fit"),
+        ({"dtype": "uint8", "shape": [1], "values": [256]}, "do not fit"),
+        ({"dtype": "bool", "shape": [1], "values": [1]}, "do not fit"),
+        ({"dtype": "float64", "shape": [1], "values": "1.0"}, "no values list"),
+    ],
+)
+def test_json_array_entries_are_validated(entry, needle):
+    text = json.dumps({"arrays": {"a": entry}, "format": FORMAT_NAME, "manifest": {}, "version": 1})
+    refused(text.encode(), needle)
+
+
+def test_json_accepts_integers_in_float_arrays():
+    text = json.dumps(
+        {
+            "arrays": {"a": {"dtype": "float64", "shape": [2], "values": [1, "NaN"]}},
+            "format": FORMAT_NAME,
+            "manifest": {},
+            "version": 1,
+        }
+    )
+    _, arrays = parse_document(text.encode(), NAME)
+    assert arrays["a"].dtype == np.float64 and arrays["a"][0] == 1.0 and np.isnan(arrays["a"][1])
+
+
+def test_unusual_zip_features_are_refused():
+    data = document_bytes({}, {"a": np.zeros(2)}, "npz")
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_BZIP2) as zf:
+        for member, content in members_of(data).items():
+            zf.writestr(member, content)
+    refused(buf.getvalue(), "unsupported compression")
+    refused(b"", "empty file")
+    refused(b"HIERARCHY", "not a staggered-poses document")
