@@ -89,6 +89,28 @@ def _silence_stdout() -> None:
 class StaggeredGroup(LazyGroup):
     """The root group: maps every exception to a message and an exit code."""
 
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """Like click's, but click's own usage errors are one line too."""
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.exceptions.NoArgsIsHelpError as err:
+            click.echo(err.ctx.get_help() if err.ctx is not None else err.format_message())
+            sys.exit(0)
+        except click.exceptions.UsageError as err:
+            where = (err.ctx.command_path if err.ctx is not None else "").split(" ", 1)[1:]
+            prefix = f"{PROG}: {where[0]}" if where else PROG
+            click.echo(f"{prefix}: {_one_line(err.format_message())} (see --help)", err=True)
+            sys.exit(err.exit_code)
+        except click.exceptions.ClickException as err:
+            click.echo(f"{PROG}: {_one_line(err.format_message())}", err=True)
+            sys.exit(err.exit_code)
+        except click.exceptions.Abort:
+            click.echo(f"{PROG}: aborted", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
     def invoke(self, ctx: click.Context):
         debug = bool(ctx.params.get("debug"))
         try:
