@@ -1,0 +1,775 @@
+"""Cubic spline segments and their batched fitting (paper 4.1.1, Appendix A).
+
+A *segment* joins two knot values on a normalized time ``u`` in [0, 1]
+(SPEC section 3).  Every function here works on a whole batch of segments at
+once: ``S`` segments, ``N`` samples, ``seg[n]`` the segment of sample ``n``.
+
+Translations (``D`` components, file units) use a cubic Bézier with
+endpoints ``p0``, ``p3`` and inner controls stored relative to them::
+
+    P1 = p0 + a,   P2 = p3 + b.
+
+Rotations (unit quaternions, **w first**) use Shoemake's cubic built by
+recursive slerp (de Casteljau with slerp) with endpoints ``q0``, ``q3`` and
+tangent quaternions stored relative to them as rotation vectors (radians)::
+
+    q1 = q0 * exp(a),   q2 = q3 * exp(b).
+
+Storing the inner controls relative to the endpoints means that editing a
+knot value carries its tangent along.  Every slerp takes the shorter arc, so
+the curve depends on the rotations only: ``q`` and ``-q`` endpoints give the
+same rotations.
+
+Defaults ("uniform" controls, for segments whose samples cannot determine
+their tangents) are the straight line at uniform speed for translations and
+exactly ``slerp(q0, q3, u)`` for rotations.
+
+Rotation tangents are fitted by a batched Levenberg–Marquardt on the sum of
+squared rotation angles between spline and samples, with an analytic
+Jacobian built from the right Jacobians of SO(3).  It replaces the paper's
+per-segment Nelder–Mead with a unit-length penalty (SPEC section 4, step 8):
+the tangents are exactly unit by construction and all segments are solved
+together.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import quat
+
+__all__ = [
+    "bezier_eval",
+    "bezier_eval_at",
+    "rotation_eval",
+    "rotation_eval_at",
+    "default_translation_tangents",
+    "default_rotation_tangents",
+    "fit_translation_tangents",
+    "fit_rotation_tangents",
+    "rotation_fit_errors",
+]
+
+# A 2x2 normal matrix whose condition number exceeds this cannot pin down two
+# Bézier controls from the samples: keep the defaults.
+_MAX_CONDITION = 1e10
+
+
+# ---------------------------------------------------------------------------
+# validation helpers
+
+
+def _as_points(name: str, x: np.ndarray, ndim: int = 2) -> np.ndarray:
+    x = np.asarray(x, dtype=float)
+    if x.ndim != ndim:
+        raise ValueError(f"{name} must be a {ndim}-d array, got shape {x.shape}")
+    return x
+
+
+def _check_same_shape(**arrays: np.ndarray) -> None:
+    shapes = {k: v.shape for k, v in arrays.items()}
+    if len(set(shapes.values())) > 1:
+        detail = ", ".join(f"{k} {s}" for k, s in shapes.items())
+        raise ValueError(f"segment arrays must have the same shape, got {detail}")
+
+
+def _check_samples(seg: np.ndarray, u: np.ndarray, n_segments: int) -> tuple[np.ndarray, np.ndarray]:
+    seg = np.asarray(seg)
+    u = np.asarray(u, dtype=float)
+    if seg.ndim != 1 or u.ndim != 1 or seg.shape != u.shape:
+        raise ValueError(f"seg and u must be 1-d arrays of one length, got shapes {seg.shape} and {u.shape}")
+    if seg.size and not np.issubdtype(seg.dtype, np.integer):
+        raise ValueError(f"seg must hold integer segment indices, got dtype {seg.dtype}")
+    seg = seg.astype(np.intp, copy=False)
+    if seg.size and (seg.min() < 0 or seg.max() >= n_segments):
+        raise ValueError(f"seg must index segments 0..{n_segments - 1}, got values in [{seg.min()}, {seg.max()}]")
+    return seg, u
+
+
+def _check_rotation_segments(q0, a, b, q3) -> tuple[np.ndarray, ...]:
+    q0 = _as_points("q0", q0)
+    q3 = _as_points("q3", q3)
+    a = _as_points("a", a)
+    b = _as_points("b", b)
+    if q0.shape[-1] != 4 or q3.shape != q0.shape:
+        raise ValueError(f"q0 and q3 must both have shape (S, 4), got {q0.shape} and {q3.shape}")
+    if a.shape != (q0.shape[0], 3) or b.shape != a.shape:
+        raise ValueError(f"a and b must both have shape ({q0.shape[0]}, 3), got {a.shape} and {b.shape}")
+    return quat.normalize(q0), a, b, quat.normalize(q3)
+
+
+# ---------------------------------------------------------------------------
+# translations: cubic Bézier
+
+
+def _bezier_weights(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Weights of (p0, a, b, p3) in B(u) with P1 = p0 + a, P2 = p3 + b."""
+    v = 1.0 - u
+    wa = 3.0 * v * v * u
+    wb = 3.0 * v * u * u
+    # P0 and P3 also receive the weights of the controls stored relative to them
+    return v * v * v + wa, wa, wb, u * u * u + wb
+
+
+def bezier_eval(p0: np.ndarray, a: np.ndarray, b: np.ndarray, p3: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Evaluate every segment at the same normalized times.
+
+    Parameters
+    ----------
+    p0, p3 : (S, D) arrays
+        Knot values at u = 0 and u = 1 (file units).
+    a, b : (S, D) arrays
+        Inner controls relative to the endpoints: P1 = p0 + a, P2 = p3 + b.
+    u : (N,) array
+        Normalized times, normally in [0, 1].
+
+    Returns
+    -------
+    (S, N, D) array
+    """
+    p0, a, b, p3 = (_as_points(n, x) for n, x in (("p0", p0), ("a", a), ("b", b), ("p3", p3)))
+    _check_same_shape(p0=p0, a=a, b=b, p3=p3)
+    u = np.asarray(u, dtype=float)
+    if u.ndim != 1:
+        raise ValueError(f"u must be a 1-d array, got shape {u.shape}")
+    w0, wa, wb, w3 = (w[None, :, None] for w in _bezier_weights(u))
+    return w0 * p0[:, None] + wa * a[:, None] + wb * b[:, None] + w3 * p3[:, None]
+
+
+def bezier_eval_at(
+    p0: np.ndarray, a: np.ndarray, b: np.ndarray, p3: np.ndarray, seg: np.ndarray, u: np.ndarray
+) -> np.ndarray:
+    """Evaluate sample ``n`` on segment ``seg[n]`` at time ``u[n]``.
+
+    Parameters
+    ----------
+    p0, a, b, p3 : (S, D) arrays
+        Segments as in :func:`bezier_eval`.
+    seg : (N,) int array
+        Segment index of each sample.
+    u : (N,) array
+        Normalized time of each sample.
+
+    Returns
+    -------
+    (N, D) array
+    """
+    p0, a, b, p3 = (_as_points(n, x) for n, x in (("p0", p0), ("a", a), ("b", b), ("p3", p3)))
+    _check_same_shape(p0=p0, a=a, b=b, p3=p3)
+    seg, u = _check_samples(seg, u, p0.shape[0])
+    w0, wa, wb, w3 = (w[:, None] for w in _bezier_weights(u))
+    return w0 * p0[seg] + wa * a[seg] + wb * b[seg] + w3 * p3[seg]
+
+
+def default_translation_tangents(p0: np.ndarray, p3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform controls: the straight line from ``p0`` to ``p3`` at constant speed.
+
+    Parameters
+    ----------
+    p0, p3 : (S, D) arrays
+
+    Returns
+    -------
+    a, b : (S, D) arrays, ``(p3 - p0) / 3`` and ``(p0 - p3) / 3``.
+    """
+    p0 = np.asarray(p0, dtype=float)
+    p3 = np.asarray(p3, dtype=float)
+    if p0.shape != p3.shape:
+        raise ValueError(f"p0 and p3 must have the same shape, got {p0.shape} and {p3.shape}")
+    d = (p3 - p0) / 3.0
+    return d, -d
+
+
+def fit_translation_tangents(
+    p0: np.ndarray,
+    p3: np.ndarray,
+    seg: np.ndarray,
+    u: np.ndarray,
+    values: np.ndarray,
+    n_segments: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares inner controls of every Bézier segment at once.
+
+    The Bézier is linear in ``(a, b)``, so each segment solves a 2x2 normal
+    system shared by all ``D`` components.  Only samples with ``0 < u < 1``
+    are used (the endpoints are interpolated anyway).  Segments with fewer
+    than 2 such samples, or whose samples are too close together in ``u`` to
+    separate the two controls, keep :func:`default_translation_tangents`.
+
+    Parameters
+    ----------
+    p0, p3 : (S, D) arrays
+        Knot values (file units).
+    seg : (N,) int array
+        Segment index of each sample, in ``range(n_segments)``.
+    u : (N,) array
+        Normalized time of each sample.
+    values : (N, D) array
+        Sample values (file units).
+    n_segments : int
+        ``S``.
+
+    Returns
+    -------
+    a, b : (S, D) arrays
+        P1 = p0 + a, P2 = p3 + b.
+    """
+    p0 = _as_points("p0", p0)
+    p3 = _as_points("p3", p3)
+    if p0.shape != p3.shape or p0.shape[0] != n_segments:
+        raise ValueError(f"p0 and p3 must both have shape ({n_segments}, D), got {p0.shape} and {p3.shape}")
+    seg, u = _check_samples(seg, u, n_segments)
+    values = _as_points("values", values)
+    if values.shape != (u.shape[0], p0.shape[1]):
+        raise ValueError(f"values must have shape ({u.shape[0]}, {p0.shape[1]}), got {values.shape}")
+
+    a, b = default_translation_tangents(p0, p3)
+    use = (u > 0.0) & (u < 1.0)
+    seg, u, values = seg[use], u[use], values[use]
+    w0, wa, wb, w3 = _bezier_weights(u)
+    # what the controls must explain once the endpoint terms are removed
+    y = values - w0[:, None] * p0[seg] - w3[:, None] * p3[seg]
+
+    def per_segment(w: np.ndarray) -> np.ndarray:
+        return np.bincount(seg, weights=w, minlength=n_segments)
+
+    count = np.bincount(seg, minlength=n_segments)
+    m11, m12, m22 = per_segment(wa * wa), per_segment(wa * wb), per_segment(wb * wb)
+    r1 = np.stack([per_segment(wa * y[:, d]) for d in range(y.shape[1])], axis=-1)
+    r2 = np.stack([per_segment(wb * y[:, d]) for d in range(y.shape[1])], axis=-1)
+
+    det = m11 * m22 - m12 * m12
+    # eigenvalues of the symmetric 2x2 give its condition number
+    half_trace = 0.5 * (m11 + m22)
+    spread = np.sqrt(np.maximum(half_trace**2 - det, 0.0))
+    lam_max, lam_min = half_trace + spread, half_trace - spread
+    ok = (count >= 2) & (lam_min > 0.0) & (lam_max < _MAX_CONDITION * np.maximum(lam_min, 1e-300))
+    det_safe = np.where(ok, det, 1.0)[:, None]
+    fit_a = (m22[:, None] * r1 - m12[:, None] * r2) / det_safe
+    fit_b = (m11[:, None] * r2 - m12[:, None] * r1) / det_safe
+    ok = ok[:, None] & np.isfinite(fit_a) & np.isfinite(fit_b)
+    return np.where(ok, fit_a, a), np.where(ok, fit_b, b)
+
+
+# ---------------------------------------------------------------------------
+# rotations: recursive slerp
+#
+# The kernels below work on component-major arrays, shape (k, n): one
+# contiguous row of n samples per quaternion / vector / matrix component.
+# Numpy handles (n, 3, 3) stacks of tiny matrices one by one, which is
+# several times slower than arithmetic on whole rows.  Samples are processed
+# in chunks of about _CHUNK so that the rows stay in cache.
+
+_CHUNK = 16384
+_CONJ = np.array([1.0, -1.0, -1.0, -1.0])[:, None]
+# Below this argument the closed forms of the SO(3) coefficient functions lose
+# digits to cancellation; their Taylor series (error < 1e-13) take over.
+_SERIES = 0.05
+
+
+def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (4, n) quaternions, w first."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
+
+
+def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation vectors (3, n) and their angles (n,) of unit quaternions (4, n).
+
+    Sign-blind: ``q`` and ``-q`` give the same (shorter-arc) vector, angle <= pi.
+    """
+    sign = np.where(q[0] < 0.0, -1.0, 1.0)
+    w = q[0] * sign
+    s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    half = np.arctan2(s, w)
+    small = s < 1e-8
+    scale = np.where(small, 2.0 / np.maximum(w, 1e-12), 2.0 * half / np.where(small, 1.0, s))
+    return q[1:] * (scale * sign), 2.0 * half
+
+
+def _qexp_t(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Unit quaternions (4, n) of rotation vectors (3, n) with norms ``angle`` (n,)."""
+    half = 0.5 * angle
+    small = angle < 1e-8
+    k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+    return np.concatenate([np.cos(half)[None], v * k])
+
+
+def _series_or(x: np.ndarray, closed, c0: float, c2: float, c4: float) -> np.ndarray:
+    x2 = x * x
+    small = x < _SERIES
+    with np.errstate(divide="ignore", invalid="ignore"):
+        exact = closed(np.where(small, 1.0, x))
+    return np.where(small, c0 + x2 * (c2 + x2 * c4), exact)
+
+
+def _f1(x: np.ndarray) -> np.ndarray:
+    """(1 - cos x) / x**2."""
+    return _series_or(x, lambda t: (1.0 - np.cos(t)) / (t * t), 0.5, -1.0 / 24.0, 1.0 / 720.0)
+
+
+def _f2(x: np.ndarray) -> np.ndarray:
+    """(x - sin x) / x**3."""
+    return _series_or(x, lambda t: (t - np.sin(t)) / (t * t * t), 1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0)
+
+
+def _sinc(x: np.ndarray) -> np.ndarray:
+    """sin x / x."""
+    return _series_or(x, lambda t: np.sin(t) / t, 1.0, -1.0 / 6.0, 1.0 / 120.0)
+
+
+def _g(x: np.ndarray) -> np.ndarray:
+    """(1 - (x/2) cot(x/2)) / x**2, the K^2 coefficient of the inverse right Jacobian.
+
+    Finite on [0, pi] (1/pi**2 at pi), which is all ``_qlog_t`` returns.
+    """
+    return _series_or(x, lambda t: (1.0 - 0.5 * t / np.tan(0.5 * t)) / (t * t), 1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0)
+
+
+# Every operator met in the Jacobian of a slerp is a function of one rotation
+# vector w: exp(s K), J_r(s w), J_r^-1(w) with K = [w]x.  Since K^3 = -|w|^2 K
+# each is p0 I + p1 K + p2 K^2, and products stay in that form; a triple
+# (p0, p1, p2) of (n,) rows holds one.
+
+
+def _pmul(a: tuple, b: tuple, t2: np.ndarray) -> tuple:
+    """Product of two polynomials in the same K with |w|^2 = ``t2``."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return (
+        a0 * b0,
+        a0 * b1 + a1 * b0 - t2 * (a1 * b2 + a2 * b1),
+        a0 * b2 + a1 * b1 + a2 * b0 - t2 * a2 * b2,
+    )
+
+
+def _pmatrix(p: tuple, w: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    """The (3, 3, n) matrix p0 I + p1 [w]x + p2 [w]x^2 (with [w]x^2 = w w^T - |w|^2 I)."""
+    p0, p1, p2 = p
+    m = (p2 * w)[:, None] * w[None]
+    d = p0 - p2 * t2
+    kx, ky, kz = p1 * w[0], p1 * w[1], p1 * w[2]
+    m[0, 0] += d
+    m[1, 1] += d
+    m[2, 2] += d
+    m[0, 1] -= kz
+    m[1, 0] += kz
+    m[0, 2] += ky
+    m[2, 0] -= ky
+    m[1, 2] -= kx
+    m[2, 1] += kx
+    return m
+
+
+def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per-sample matrix product of (3, 3, n) and (3, k, n) -> (3, k, n)."""
+    return np.einsum("ijn,jkn->ikn", a, b)
+
+
+def _jr(s: np.ndarray | float, angle: np.ndarray) -> tuple:
+    """s * J_r(s w) as a polynomial in [w]x, for |w| = ``angle`` and s >= 0."""
+    st = s * angle
+    return (s * np.ones_like(angle), -s * s * _f1(st), s * s * s * _f2(st))
+
+
+# A Jacobian is a pair of (3, 3, n) blocks (d/da, d/db), None for a zero block.
+_Jac = tuple
+
+
+def _add_terms(*terms: np.ndarray | None) -> np.ndarray | None:
+    out = None
+    for t in terms:
+        if t is not None:
+            out = t if out is None else out + t
+    return out
+
+
+def _slerp_t(
+    x: np.ndarray, jx: _Jac | None, z: np.ndarray, jz: _Jac | None, u: np.ndarray
+) -> tuple[np.ndarray, _Jac | None]:
+    """Shorter-arc slerp ``y = x exp(u log(x^-1 z))`` on (4, n) rows, with its Jacobian.
+
+    Jacobians are of right perturbations: ``x exp(jx @ dp)``.  Perturbing x
+    by dx and z by dz moves y by
+    ``(exp(-uK) - C exp(-K)) dx + C dz`` with ``C = u J_r(u w) J_r^-1(w)``,
+    ``w = log(x^-1 z)`` and ``K = [w]x``.
+    """
+    w, th = _qlog_t(_qmul_t(x * _CONJ, z))
+    y = _qmul_t(x, _qexp_t(u * w, u * th))
+    if jx is None and jz is None:
+        return y, None
+    t2 = th * th
+    ut = u * th
+    c = _pmul(_jr(u, th), (np.ones_like(th), np.full_like(th, 0.5), _g(th)), t2)
+    cm = _pmatrix(c, w, t2) if jz is not None else None
+    am = None
+    if jx is not None:
+        exp_mu = (np.ones_like(th), -u * _sinc(ut), u * u * _f1(ut))
+        exp_m1 = (np.ones_like(th), -_sinc(th), _f1(th))
+        c_e = _pmul(c, exp_m1, t2)
+        am = _pmatrix(tuple(p - q for p, q in zip(exp_mu, c_e, strict=True)), w, t2)
+    jy = []
+    for i in range(2):
+        bx = None if jx is None or jx[i] is None else _mm(am, jx[i])
+        bz = None if jz is None or jz[i] is None else _mm(cm, jz[i])
+        jy.append(_add_terms(bx, bz))
+    return y, (jy[0], jy[1])
+
+
+def _curve_t(
+    q0: np.ndarray, a: np.ndarray, b: np.ndarray, q3: np.ndarray, u: np.ndarray, jacobian: bool
+) -> tuple[np.ndarray, _Jac | None]:
+    """The recursive-slerp cubic on (k, n) rows; ``a``, ``b`` have angles <= pi.
+
+    The outer slerps are written in closed form: with |a| <= pi,
+    ``slerp(q0, q0 exp(a), u) = q0 exp(u a)`` and
+    ``slerp(q3 exp(b), q3, u) = q3 exp((1 - u) b)``.
+    """
+    ta = np.sqrt(np.sum(a * a, axis=0))
+    tb = np.sqrt(np.sum(b * b, axis=0))
+    v = 1.0 - u
+    q1 = _qmul_t(q0, _qexp_t(a, ta))
+    q2 = _qmul_t(q3, _qexp_t(b, tb))
+    q01 = _qmul_t(q0, _qexp_t(u * a, u * ta))
+    q23 = _qmul_t(q3, _qexp_t(v * b, v * tb))
+    if jacobian:
+        ta2, tb2 = ta * ta, tb * tb
+        j1 = (_pmatrix(_jr(1.0, ta), a, ta2), None)
+        j2 = (None, _pmatrix(_jr(1.0, tb), b, tb2))
+        j01 = (_pmatrix(_jr(u, ta), a, ta2), None)
+        j23 = (None, _pmatrix(_jr(v, tb), b, tb2))
+    else:
+        j1 = j2 = j01 = j23 = None
+    q12, j12 = _slerp_t(q1, j1, q2, j2, u)
+    q012, j012 = _slerp_t(q01, j01, q12, j12, u)
+    q123, j123 = _slerp_t(q12, j12, q23, j23, u)
+    return _slerp_t(q012, j012, q123, j123, u)
+
+
+def _residuals_t(
+    q0: np.ndarray, x: np.ndarray, q3: np.ndarray, u: np.ndarray, values: np.ndarray, jacobian: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Residuals ``log(values^-1 s(u))`` (3, n) and their Jacobian (3, 6, n).
+
+    ``x`` (6, n) holds (a, b) per sample, angles <= pi.  ``|residual|`` is
+    the angle between spline and sample.
+    """
+    s, js = _curve_t(q0, x[:3], x[3:], q3, u, jacobian)
+    r, th = _qlog_t(_qmul_t(values * _CONJ, s))
+    if not jacobian:
+        return r, None
+    t2 = th * th
+    jinv = _pmatrix((np.ones_like(th), np.full_like(th, 0.5), _g(th)), r, t2)
+    return r, np.concatenate([_mm(jinv, js[0]), _mm(jinv, js[1])], axis=1)
+
+
+def _wrap_rotation_vector(v: np.ndarray) -> np.ndarray:
+    """The same rotation (..., 3) with angle at most pi, as ``quat.log`` gives it."""
+    t = np.linalg.norm(v, axis=-1, keepdims=True)
+    over = t > np.pi
+    return np.where(over, v * (1.0 - 2.0 * np.pi / np.where(over, t, 1.0)), v)
+
+
+def _rotation_residuals(
+    q0: np.ndarray, x: np.ndarray, q3: np.ndarray, u: np.ndarray, values: np.ndarray, jacobian: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Sample-major wrapper of the residual kernel (for tests).
+
+    q0, q3, values (N, 4); x (N, 6) with angles <= pi; u (N,).
+    Returns residuals (N, 3) and, if asked, d residual / d x (N, 3, 6).
+    """
+    r, j = _residuals_t(q0.T, x.T, q3.T, u, values.T, jacobian)
+    return r.T, None if j is None else np.moveaxis(j, -1, 0)
+
+
+def rotation_eval(q0: np.ndarray, a: np.ndarray, b: np.ndarray, q3: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Evaluate every rotation segment at the same normalized times.
+
+    Parameters
+    ----------
+    q0, q3 : (S, 4) arrays
+        Knot rotations, unit quaternions, w first.
+    a, b : (S, 3) arrays
+        Tangents as rotation vectors (radians): q1 = q0 exp(a), q2 = q3 exp(b).
+    u : (N,) array
+        Normalized times.
+
+    Returns
+    -------
+    (S, N, 4) array of unit quaternions, w first (sign as in :func:`rotation_eval_at`).
+    """
+    u = np.asarray(u, dtype=float)
+    if u.ndim != 1:
+        raise ValueError(f"u must be a 1-d array, got shape {u.shape}")
+    s = np.asarray(q0).shape[0] if np.ndim(q0) == 2 else 0
+    seg = np.repeat(np.arange(s), u.shape[0])
+    return rotation_eval_at(q0, a, b, q3, seg, np.tile(u, s)).reshape(s, u.shape[0], 4)
+
+
+def rotation_eval_at(
+    q0: np.ndarray, a: np.ndarray, b: np.ndarray, q3: np.ndarray, seg: np.ndarray, u: np.ndarray
+) -> np.ndarray:
+    """Evaluate sample ``n`` on rotation segment ``seg[n]`` at time ``u[n]``.
+
+    Shoemake's cubic: de Casteljau's construction with slerp along the
+    shorter arc on the controls q0, q1 = q0 exp(a), q2 = q3 exp(b), q3.
+
+    Parameters
+    ----------
+    q0, q3 : (S, 4) arrays
+        Knot rotations, unit quaternions, w first (either sign).
+    a, b : (S, 3) arrays
+        Tangents as rotation vectors (radians); angles above pi are the
+        same rotations as their wrapped vectors.
+    seg : (N,) int array
+        Segment index of each sample.
+    u : (N,) array
+        Normalized time of each sample.
+
+    Returns
+    -------
+    (N, 4) array
+        Unit quaternions, w first.  The sign varies continuously with ``u``
+        starting from exactly ``q0`` at u = 0, so at u = 1 the value is ``q3``
+        or ``-q3`` (``q3`` on tracks kept on one hemisphere, unless the curve
+        swings more than half a turn away from it).
+    """
+    q0, a, b, q3 = _check_rotation_segments(q0, a, b, q3)
+    seg, u = _check_samples(seg, u, q0.shape[0])
+    a, b = _wrap_rotation_vector(a), _wrap_rotation_vector(b)
+    out = np.empty((u.shape[0], 4))
+    for lo in range(0, u.shape[0], _CHUNK):
+        sg = seg[lo : lo + _CHUNK]
+        q, _ = _curve_t(q0[sg].T, a[sg].T, b[sg].T, q3[sg].T, u[lo : lo + _CHUNK], jacobian=False)
+        out[lo : lo + _CHUNK] = q.T
+    return quat.normalize(out)
+
+
+def default_rotation_tangents(q0: np.ndarray, q3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform tangents: the cubic is exactly ``slerp(q0, q3, u)``.
+
+    Parameters
+    ----------
+    q0, q3 : (S, 4) arrays
+        Unit quaternions, w first.
+
+    Returns
+    -------
+    a, b : (S, 3) arrays (radians)
+        ``log(q0^-1 q3) / 3`` and ``log(q3^-1 q0) / 3`` (shorter arc).
+    """
+    q0 = np.asarray(q0, dtype=float)
+    q3 = np.asarray(q3, dtype=float)
+    if q0.shape != q3.shape or q0.shape[-1:] != (4,):
+        raise ValueError(f"q0 and q3 must both have shape (..., 4), got {q0.shape} and {q3.shape}")
+    q0, q3 = quat.normalize(q0), quat.normalize(q3)
+    return quat.log(quat.mul(quat.conj(q0), q3)) / 3.0, quat.log(quat.mul(quat.conj(q3), q0)) / 3.0
+
+
+def _check_rotation_values(values: np.ndarray, n: int) -> np.ndarray:
+    values = _as_points("values", values)
+    if values.shape != (n, 4):
+        raise ValueError(f"values must have shape ({n}, 4), got {values.shape}")
+    return quat.normalize(values)
+
+
+def rotation_fit_errors(
+    q0: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    q3: np.ndarray,
+    seg: np.ndarray,
+    u: np.ndarray,
+    values: np.ndarray,
+    n_segments: int,
+) -> np.ndarray:
+    """RMS angle (radians) between each segment's spline and its samples.
+
+    Parameters
+    ----------
+    q0, a, b, q3 : segments as in :func:`rotation_eval_at`, S = ``n_segments``.
+    seg, u : (N,) arrays, samples as in :func:`rotation_eval_at`.
+    values : (N, 4) array, sample rotations (unit, w first, either sign).
+    n_segments : int
+
+    Returns
+    -------
+    (S,) array, NaN for segments without samples.
+    """
+    q0, a, b, q3 = _check_rotation_segments(q0, a, b, q3)
+    seg, u = _check_samples(seg, u, n_segments)
+    if q0.shape[0] != n_segments:
+        raise ValueError(f"q0 must have {n_segments} rows, got {q0.shape[0]}")
+    values = _check_rotation_values(values, u.shape[0])
+    ang = quat.angle_between(rotation_eval_at(q0, a, b, q3, seg, u), values)
+    count = np.bincount(seg, minlength=n_segments)
+    total = np.bincount(seg, weights=ang * ang, minlength=n_segments)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(total / count)
+
+
+class _NormalEquations:
+    """Per-segment Gauss–Newton sums over samples grouped by segment.
+
+    Holds the usable samples sorted by segment in component-major form, and
+    evaluates, for any subset of segments, the squared error, J^T J and
+    J^T r in chunks that never split a segment.
+    """
+
+    def __init__(self, q0, q3, seg, u, values, n_segments):
+        order = np.argsort(seg, kind="stable")
+        self.seg = seg[order]
+        self.u = u[order]
+        self.q0 = q0[self.seg].T.copy()
+        self.q3 = q3[self.seg].T.copy()
+        self.values = values[order].T.copy()
+        self.count = np.bincount(seg, minlength=n_segments)
+        self.first = np.concatenate([[0], np.cumsum(self.count)[:-1]])
+
+    def __call__(self, rows: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Squared error (R,), J^T J (R, 6, 6) and J^T r (R, 6) of segments ``rows`` at ``x`` (R, 6)."""
+        counts = self.count[rows]
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        # sample indices of the selected segments, in segment order
+        idx = np.repeat(self.first[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
+        local = np.repeat(np.arange(rows.size), counts)
+        # chunk boundaries at segment starts
+        group = offsets[:-1] // _CHUNK
+        cuts = np.concatenate([[0], np.flatnonzero(np.diff(group)) + 1, [rows.size]])
+        cost = np.empty(rows.size)
+        jtj = np.empty((rows.size, 6, 6))
+        jtr = np.empty((rows.size, 6))
+        for s0, s1 in zip(cuts[:-1], cuts[1:], strict=True):
+            lo, hi = offsets[s0], offsets[s1]
+            sl = idx[lo:hi]
+            r, j = _residuals_t(self.q0[:, sl], x[local[lo:hi]].T, self.q3[:, sl], self.u[sl], self.values[:, sl], True)
+            starts = offsets[s0:s1] - lo
+            cost[s0:s1] = np.add.reduceat(np.sum(r * r, axis=0), starts)
+            jj = j[0][:, None] * j[0][None] + j[1][:, None] * j[1][None] + j[2][:, None] * j[2][None]
+            jtj[s0:s1] = np.moveaxis(np.add.reduceat(jj, starts, axis=-1), -1, 0)
+            jtr[s0:s1] = np.add.reduceat(np.sum(j * r[:, None], axis=0), starts, axis=-1).T
+        return cost, jtj, jtr
+
+
+def fit_rotation_tangents(
+    q0: np.ndarray,
+    q3: np.ndarray,
+    seg: np.ndarray,
+    u: np.ndarray,
+    values: np.ndarray,
+    n_segments: int,
+    iterations: int = 30,
+    rtol: float = 1e-8,
+    damping: float = 1e-3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the tangents of every rotation segment at once (batched Levenberg–Marquardt).
+
+    Minimizes, per segment, the sum over its samples with ``0 < u < 1`` of
+    the squared angle between the spline and the sample: the objective of
+    the paper's Appendix A without its unit-length penalty, since the
+    tangents ``q0 exp(a)``, ``q3 exp(b)`` are unit by construction.  Starts
+    from the uniform tangents (exactly slerp) and accepts a step only when it
+    lowers that segment's error, so no segment ends worse than slerp.  Each
+    segment has its own damping and stops on its own once converged.
+    Segments with fewer than 2 usable samples keep the uniform tangents.
+
+    Parameters
+    ----------
+    q0, q3 : (S, 4) arrays
+        Knot rotations, unit quaternions, w first (either sign).
+    seg : (N,) int array
+        Segment index of each sample, in ``range(n_segments)``.
+    u : (N,) array
+        Normalized time of each sample.
+    values : (N, 4) array
+        Sample rotations, unit quaternions, w first (either sign).
+    n_segments : int
+        ``S``.
+    iterations : int
+        At most this many Levenberg–Marquardt steps per segment.
+    rtol : float
+        A segment stops once an accepted step lowers its squared error by
+        less than this fraction.
+    damping : float
+        Initial Marquardt damping, relative to the diagonal of J^T J.
+
+    Returns
+    -------
+    a, b : (S, 3) arrays
+        Tangent rotation vectors (radians, angle at most pi): q1 = q0 exp(a),
+        q2 = q3 exp(b).  Always finite.
+    """
+    q0 = _as_points("q0", q0)
+    q3 = _as_points("q3", q3)
+    if q0.shape != (n_segments, 4) or q3.shape != q0.shape:
+        raise ValueError(f"q0 and q3 must both have shape ({n_segments}, 4), got {q0.shape} and {q3.shape}")
+    seg, u = _check_samples(seg, u, n_segments)
+    values = _check_rotation_values(values, u.shape[0])
+    if iterations < 0:
+        raise ValueError(f"iterations must be >= 0, got {iterations}")
+    q0, q3 = quat.normalize(q0), quat.normalize(q3)
+    a0, b0 = default_rotation_tangents(q0, q3)
+    params = np.concatenate([a0, b0], axis=-1)
+
+    use = (u > 0.0) & (u < 1.0) & np.all(np.isfinite(values), axis=-1)
+    active = np.bincount(seg[use], minlength=n_segments) >= 2
+    use &= active[seg]
+    if iterations == 0 or not np.any(active):
+        return a0, b0
+    normal = _NormalEquations(q0, q3, seg[use], u[use], values[use], n_segments)
+
+    rows = np.flatnonzero(active)
+    cost = np.zeros(n_segments)
+    jtj = np.zeros((n_segments, 6, 6))
+    jtr = np.zeros((n_segments, 6))
+    cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
+    lam = np.full(n_segments, float(damping))
+    eye = np.eye(6)
+
+    for _ in range(iterations):
+        rows = np.flatnonzero(active)
+        if rows.size == 0:
+            break
+        h = jtj[rows]
+        diag = np.diagonal(h, axis1=-2, axis2=-1)
+        # Marquardt scaling, floored so that a direction the samples barely
+        # see still gets a bounded step
+        scale = np.maximum(diag, 1e-9 * np.max(diag, axis=-1, keepdims=True) + 1e-300)
+        h = h + (lam[rows, None] * scale)[:, :, None] * eye
+        g = jtr[rows]
+        step = -np.linalg.solve(h, g[..., None])[..., 0]
+        # decrease promised by the Gauss-Newton model: when even that is
+        # negligible the segment has converged, and evaluating is wasted work
+        predicted = -(2.0 * np.sum(step * g, axis=-1) + np.einsum("si,sij,sj->s", step, jtj[rows], step))
+        done = predicted <= rtol * cost[rows]
+        active[rows[done]] = False
+        rows, step = rows[~done], step[~done]
+        if rows.size == 0:
+            break
+        trial = params[rows] + step
+        trial = np.concatenate([_wrap_rotation_vector(trial[:, :3]), _wrap_rotation_vector(trial[:, 3:])], -1)
+        finite = np.all(np.isfinite(trial), axis=-1)
+        trial = np.where(finite[:, None], trial, params[rows])
+
+        c_new, jtj_new, jtr_new = normal(rows, trial)
+        better = finite & np.isfinite(c_new) & (c_new < cost[rows])
+        ok = rows[better]
+        converged = (cost[ok] - c_new[better] <= rtol * cost[ok]) | (c_new[better] == 0.0)
+        params[ok], cost[ok] = trial[better], c_new[better]
+        jtj[ok], jtr[ok] = jtj_new[better], jtr_new[better]
+        lam[ok] = np.maximum(lam[ok] / 3.0, 1e-12)
+        bad = rows[~better]
+        lam[bad] *= 4.0
+        active[ok[converged]] = False
+        # a segment whose steps keep failing sits at a minimum, to rounding
+        active[bad[lam[bad] > 1e8]] = False
+
+    return params[:, :3].copy(), params[:, 3:].copy()
