@@ -1,0 +1,786 @@
+"""C3D marker files: read to :class:`MarkerMotion`, write back with everything else kept.
+
+ezc3d does the parsing and the writing; this module adds what a command-line
+tool needs around it:
+
+* a cheap pre-check of the header and of the few parameters that size the
+  data block, *before* ezc3d sees the file.  ezc3d 1.7.2 reads frames until
+  end of file without complaint, so a truncated file loads with missing or
+  garbage last frames, and a file claiming 10^9 frames is taken at its word
+  (header, loop bound); both are refused here with one line naming the file.
+* the conversion at the edge: ezc3d's ``(4, markers, frames)`` becomes
+  ``(frames, markers, 3)`` float64 in file units, NaN where the marker is
+  missing (ezc3d's convention: a negative residual means missing).
+* writing over the source file: every parameter, analog channel and header
+  event of the source is kept, only the points (and what depends on the
+  frame count) change.  Writes are atomic.
+
+Layout facts used here (C3D User Guide): the file is a sequence of 512-byte
+blocks; block 1 is the header (16-bit words), the parameter section starts at
+the block named by the header's first byte, the data at the block named by
+header word 9.  A 3D frame holds ``4 * POINT:USED`` values followed by
+``ANALOG:USED * samples_per_frame`` analog values; a value is a 4-byte float
+when ``POINT:SCALE < 0``, a 2-byte integer otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import struct
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataError
+from ..motion import MarkerMotion
+
+__all__ = ["read_c3d", "write_c3d", "c3d_bytes"]
+
+_BLOCK = 512
+_KEY_BYTE = 0x50  # second byte of every C3D file
+_PROCESSORS = {84: "intel", 85: "dec", 86: "mips"}
+_INTEL = 84
+#: More frames than any capture system records (10^8 frames = 9 days at 120 Hz).
+MAX_FRAMES = 10**8
+#: Most frames ezc3d 1.7.2 can write so that they read back (16-bit counts).
+MAX_WRITE_FRAMES = 65535
+#: C3D stores the dimensions of a parameter in bytes: at most 255 labels per
+#: LABELS parameter, the rest continue in LABELS2, LABELS3, ...
+_LABELS_PER_PARAMETER = 255
+# Header event block (0-based byte offsets): words 150..234 hold the
+# four-character-label key, the event count, 18 float times, 18 display
+# bytes and 18 four-character labels.  ezc3d's writer drops them.
+_EVENTS_START = 298
+_EVENT_TIMES = slice(304, 376)
+_EVENTS_STOP = 468
+
+
+# --------------------------------------------------------------------------
+# reading
+
+
+def read_c3d(
+    path: str | os.PathLike[str],
+    data: bytes | None = None,
+    name: str | None = None,
+) -> MarkerMotion:
+    """Read the markers of a C3D file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to read; only used to open it when ``data`` is None.
+    data : bytes, optional
+        The file content, already read (from stdin, say).
+    name : str, optional
+        How to name the file in error messages (``'<stdin>'``); defaults to
+        ``path``.
+
+    Returns
+    -------
+    MarkerMotion
+        ``points`` is ``(T, M, 3)`` float64 in file units (``POINT:UNITS``),
+        NaN where a marker is missing; ``labels`` are the ``M`` first entries
+        of ``POINT:LABELS`` continued by ``LABELS2``...; ``rate`` is
+        ``POINT:RATE`` in Hz; ``source`` holds the file bytes.
+
+    Raises
+    ------
+    DataError
+        Not a C3D file, a truncated or inconsistent one, or one that ezc3d
+        refuses; the message names the file.
+    """
+    source_name = name if name is not None else os.fspath(path)
+    if data is None:
+        try:
+            raw = Path(path).read_bytes()
+        except OSError as exc:
+            raise DataError(f"cannot read file: {exc.strerror or exc}", source_name) from None
+    else:
+        raw = bytes(data)
+
+    layout = _check_layout(raw, source_name)
+    c3d = _load_ezc3d(raw, source_name)
+
+    parameters = c3d["parameters"]
+    ez_points = c3d["data"]["points"]  # (4, M, T), row 3 is 1
+    residuals = c3d["data"]["meta_points"]["residuals"]  # (1, M, T)
+    n_markers, n_frames = ez_points.shape[1], ez_points.shape[2]
+    if n_frames < layout.n_frames or n_markers != layout.n_points:
+        # _check_layout saw every declared frame in the file: a different
+        # count means ezc3d derived another layout than the one checked
+        raise DataError(
+            f"ezc3d read {n_frames} frames of {n_markers} markers, the file declares "
+            f"{layout.n_frames} frames of {layout.n_points} markers",
+            source_name,
+        )
+    # more frames than declared: ezc3d read on into the block padding (it does
+    # when a POINT:FRAMES over 32767 is stored as a negative INT)
+    n_frames = layout.n_frames
+
+    points = np.ascontiguousarray(ez_points[:3, :, :n_frames].transpose(2, 1, 0), dtype=np.float64)
+    # ezc3d already sets NaN where the residual is negative; a coordinate that
+    # is not finite in a sample marked valid can only mean missing as well
+    missing = (residuals[0, :, :n_frames].T < 0) | ~np.isfinite(points).all(axis=-1)
+    points[missing] = np.nan
+
+    labels = [_text(label) for label in _point_labels(parameters)]
+    if len(labels) < n_markers:
+        # name the unlabelled points the way ezc3d does
+        labels = labels + [f"unlabeled_point_{i}" for i in range(len(labels), n_markers)]
+    rate = _first_float(parameters["POINT"].get("RATE")) or float(c3d["header"]["points"]["frame_rate"])
+    if not np.isfinite(rate) or rate <= 0:
+        raise DataError(f"no usable frame rate (POINT:RATE is {rate:g})", source_name)
+    units = parameters["POINT"].get("UNITS", {}).get("value") or [""]
+
+    return MarkerMotion(
+        labels=tuple(labels[:n_markers]),
+        points=points,
+        rate=float(rate),
+        units=_text(str(units[0])).strip(),
+        source=raw,
+    )
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """What sizes the data block of a C3D file, as ezc3d 1.7.2 will see it."""
+
+    processor: int
+    n_points: int  # POINT:USED
+    n_analogs: int  # ANALOG:USED
+    analog_per_frame: int  # analog samples per 3D frame
+    n_frames: int
+    value_bytes: int  # 4 (float) or 2 (integer)
+    data_offset: int  # byte offset of the first frame
+
+
+def _check_layout(raw: bytes, source: str) -> _Layout:
+    """Validate the header and the sizing parameters without allocating.
+
+    Mirrors the way ezc3d 1.7.2 derives the frame layout (parameters override
+    the header: ``POINT:FRAMES`` when non-zero, ``POINT:USED``,
+    ``ANALOG:USED``, ``ANALOG:RATE / POINT:RATE``) and checks that the file
+    holds every declared frame.
+    """
+    if len(raw) == 0:
+        raise DataError("not a C3D file: the file is empty", source)
+    if len(raw) < 2 or raw[1] != _KEY_BYTE:
+        raise DataError("not a C3D file (no C3D key byte 0x50 in the header)", source)
+    if len(raw) < _BLOCK:
+        raise DataError(f"truncated C3D: {len(raw)} bytes, the header alone is {_BLOCK}", source)
+    parameter_block = raw[0]
+    parameter_offset = (parameter_block - 1) * _BLOCK
+    if parameter_block < 2 or parameter_offset + 4 > len(raw):
+        raise DataError(
+            f"truncated or corrupt C3D: the parameter section (block {parameter_block}) is not in the file",
+            source,
+        )
+    processor = raw[parameter_offset + 3]
+    if processor not in _PROCESSORS:
+        raise DataError(f"corrupt C3D: unknown processor type {processor} in the parameter section", source)
+
+    word = _word_reader(raw, processor)
+    h_points, h_analog_values = word(1), word(2)
+    h_first, h_last = word(3), word(4)
+    h_scale = _decode_float(raw[12:16], processor)
+    h_data_start, h_analog_per_frame = word(8), word(9)
+    h_rate = _decode_float(raw[20:24], processor)
+
+    params, n_values, groups = _read_sizing_parameters(raw, parameter_offset, processor, source)
+
+    def param(key: str, default: float) -> float:
+        value = params.get(key)
+        if value is None:
+            return default
+        if not np.isfinite(value):
+            raise DataError(f"corrupt C3D: parameter {key} is {value}", source)
+        return value
+
+    n_points = int(param("POINT:USED", h_points))
+    n_analogs = int(param("ANALOG:USED", 0))
+    if n_points < 0 or n_analogs < 0:
+        raise DataError(f"corrupt C3D: POINT:USED={n_points}, ANALOG:USED={n_analogs}", source)
+
+    # frame count: ezc3d takes POINT:FRAMES when it is non-zero, else the
+    # header's (1-based, inclusive) frame range
+    first = h_first - 1 if h_first else 0
+    last = h_last - 1 if (h_last and h_first) else h_last
+    n_frames = int(param("POINT:FRAMES", 0))
+    if n_frames < 0:
+        # an INT parameter over 32767 frames: the C3D guide reads it unsigned
+        n_frames += 1 << 16
+    if n_frames == 0:
+        n_frames = last - first + 1
+    if n_frames < 0:
+        raise DataError(f"corrupt C3D header: last frame {h_last} before first frame {h_first}", source)
+    longer = _long_frame_count(params)
+    if n_frames == MAX_WRITE_FRAMES and longer > n_frames:
+        # over 65535 frames declared the old way (16-bit counts at their
+        # maximum, the true count elsewhere): ezc3d 1.7.2 would silently read
+        # the first 65535 only.  Elsewhere a stale TRIAL range is harmless.
+        raise DataError(
+            f"unsupported C3D: declares {longer} frames in TRIAL:ACTUAL_*_FIELD or POINT:LONG_FRAMES, "
+            f"ezc3d reads only {n_frames} of them",
+            source,
+        )
+    if n_frames > MAX_FRAMES:
+        raise DataError(f"corrupt C3D: claims {n_frames} frames (more than {MAX_FRAMES})", source)
+
+    point_rate = param("POINT:RATE", h_rate)
+    analog_rate = param("ANALOG:RATE", 0.0)
+    analog_per_frame = h_analog_per_frame
+    if np.isfinite(point_rate) and np.isfinite(analog_rate) and int(point_rate) != 0:
+        from_rates = int(analog_rate / point_rate)
+        if from_rates != h_analog_per_frame and not (h_analog_per_frame == 1 and "SHADOW" in groups):
+            analog_per_frame = from_rates
+    if analog_per_frame < 0:
+        raise DataError(f"corrupt C3D: {analog_per_frame} analog samples per frame", source)
+    if n_points == 0 and n_analogs == 0:
+        n_frames = 0  # ezc3d: no data at all
+    if n_frames and n_analogs and analog_per_frame and "SHADOW" not in groups:
+        # ezc3d 1.7.2 indexes one scale and one offset per channel without
+        # a bounds check: a missing ANALOG:SCALE crashes the interpreter
+        for name in ("SCALE", "OFFSET"):
+            have = sum(n for key, n in n_values.items() if re.fullmatch(f"ANALOG:{name}[0-9]*", key))
+            if have < n_analogs:
+                raise DataError(f"corrupt C3D: ANALOG:{name} has {have} values for {n_analogs} analog channels", source)
+
+    scale = param("POINT:SCALE", h_scale) if n_points else h_scale
+    value_bytes = 4 if scale < 0 else 2
+    data_offset = (h_data_start - 1) * _BLOCK
+    if h_data_start < 2 or data_offset > len(raw):
+        raise DataError(f"truncated or corrupt C3D: data start block {h_data_start} is not in the file", source)
+
+    stride = 4 * n_points + n_analogs * analog_per_frame  # values per frame, as ezc3d reads
+    needed = n_frames * stride * value_bytes
+    available = len(raw) - data_offset
+    header_stride = 4 * h_points + h_analog_values
+    if header_stride != stride:
+        # Header and parameters disagree on the frame size.  ezc3d follows the
+        # parameters; accept only when the data block fits them and not the
+        # header (otherwise ezc3d reads garbage with a wrong stride).
+        header_needed = n_frames * header_stride * value_bytes
+        if not (needed <= available < needed + _BLOCK) or header_needed <= available < header_needed + _BLOCK:
+            raise DataError(
+                f"inconsistent C3D: the header says {h_points} points and {h_analog_values} analog "
+                f"values per frame, the parameters {n_points} points, {n_analogs} analog channels x "
+                f"{analog_per_frame} samples; refusing to guess the frame layout",
+                source,
+            )
+    if needed > available:
+        frame_bytes = stride * value_bytes
+        whole = available // frame_bytes if frame_bytes else 0
+        raise DataError(
+            f"truncated C3D: {n_frames} frames of {frame_bytes} bytes declared, "
+            f"the file holds {whole} ({available} of {needed} data bytes)",
+            source,
+        )
+    return _Layout(processor, n_points, n_analogs, analog_per_frame, n_frames, value_bytes, data_offset)
+
+
+def _long_frame_count(params: dict[str, float]) -> int:
+    """Frame count from POINT:LONG_FRAMES or the TRIAL fields (0 if absent)."""
+    count = 0
+    long_frames = params.get("POINT:LONG_FRAMES")
+    if long_frames is not None and np.isfinite(long_frames):
+        count = int(long_frames)
+    start, end = params.get("TRIAL:ACTUAL_START_FIELD"), params.get("TRIAL:ACTUAL_END_FIELD")
+    if start is not None and end is not None:
+        count = max(count, int(end) - int(start) + 1)
+    return count
+
+
+def _word_reader(raw: bytes, processor: int):
+    """Reader of unsigned 16-bit header word ``i`` (0-based) for ``processor``."""
+    fmt = ">H" if processor == 86 else "<H"
+    return lambda i: struct.unpack_from(fmt, raw, 2 * i)[0]
+
+
+def _decode_float(four: bytes, processor: int) -> float:
+    """A 4-byte C3D float in the byte order of ``processor`` (84 Intel, 85 DEC, 86 MIPS)."""
+    if processor == 86:
+        return struct.unpack(">f", four)[0]
+    if processor == 85:
+        # DEC F-floating: 16-bit words swapped, exponent biased by 2 more than
+        # IEEE, so the value is the swapped IEEE value divided by 4
+        b = bytes((four[2], four[3], four[0], four[1]))
+        return struct.unpack("<f", b)[0] / 4.0
+    return struct.unpack("<f", four)[0]
+
+
+_SIZING_PARAMETERS = {
+    ("POINT", "USED"),
+    ("POINT", "FRAMES"),
+    ("POINT", "SCALE"),
+    ("POINT", "RATE"),
+    ("ANALOG", "USED"),
+    ("ANALOG", "RATE"),
+    ("POINT", "LONG_FRAMES"),
+    ("TRIAL", "ACTUAL_START_FIELD"),
+    ("TRIAL", "ACTUAL_END_FIELD"),
+}
+#: Parameters made of two unsigned 16-bit words, low word first.
+_TWO_WORD_PARAMETERS = {("TRIAL", "ACTUAL_START_FIELD"), ("TRIAL", "ACTUAL_END_FIELD")}
+
+
+_PARAMETER_TYPES = {-1: 1, 1: 1, 2: 2, 4: 4}  # C3D type code -> bytes per value
+
+
+def _read_sizing_parameters(
+    raw: bytes, offset: int, processor: int, source: str
+) -> tuple[dict[str, float], dict[str, int], set[str]]:
+    """Walk the parameter section, check its structure, and pick what sizes the data.
+
+    The walk follows the C3D User Guide ("The parameter section"): each
+    record is a group or a parameter with a name, an offset to the next
+    record, and (for a parameter) a type, dimensions, values and a
+    description that must fit before the next record.  ezc3d 1.7.2 does not
+    check that and can crash the interpreter on a corrupt section, so a
+    record that overruns its neighbour, an unknown type or a parameter of a
+    group that does not exist is refused here.
+
+    Returns
+    -------
+    values : dict
+        ``{'GROUP:NAME': first value}`` for ``_SIZING_PARAMETERS``.
+    counts : dict
+        ``{'GROUP:NAME': number of values}`` for every parameter.
+    groups : set of str
+        The group names.
+
+    Raises
+    ------
+    DataError
+        A malformed record; the message gives its byte offset.
+    """
+    int16, uint16 = (">h", ">H") if processor == 86 else ("<h", "<H")
+    end = len(raw)
+    group_names: dict[int, str] = {}
+    records: list[tuple[int, str, int, int, bytes]] = []  # group id, name, type, count, first 4 value bytes
+    pos = offset + 4
+    for _ in range(100_000):  # bounded: a corrupt offset must not loop forever
+        if pos + 2 > end:
+            break
+        name_len = abs(struct.unpack_from("b", raw, pos)[0])
+        ident = struct.unpack_from("b", raw, pos + 1)[0]
+        if name_len == 0 or ident == 0:
+            break  # the end mark
+        next_at = pos + 2 + name_len
+        if next_at + 2 > end:
+            raise DataError(f"truncated C3D: parameter record at byte {pos} runs past the end of file", source)
+        name = raw[pos + 2 : next_at].decode("latin-1")  # exact, as ezc3d compares names
+        # ezc3d reads the offset unsigned, a zero marks the last record
+        step = struct.unpack_from(uint16, raw, next_at)[0]
+        record_end = next_at + step if step > 0 else end
+        body = next_at + 2
+
+        def bad(why: str, at: int = pos, label: str = name) -> DataError:
+            return DataError(f"corrupt C3D: parameter record {label!r} at byte {at} {why}", source)
+
+        if record_end > end:
+            raise bad("points past the end of file")
+        # ezc3d reads description lengths and dimension counts as signed bytes
+        # and crashes (or allocates 4 GB) on a "negative" one: refuse >= 128
+        if ident < 0:
+            if body + 1 > record_end or raw[body] >= 128 or body + 1 + raw[body] > record_end:
+                raise bad("has a description longer than the record")
+            group_names[-ident] = name
+        else:
+            if body + 2 > record_end:
+                raise bad("is shorter than its header")
+            ptype, ndims = struct.unpack_from("b", raw, body)[0], raw[body + 1]
+            if ptype not in _PARAMETER_TYPES:
+                raise bad(f"has unknown type {ptype}")
+            if ndims >= 128 or (ptype == -1 and ndims == 0):
+                raise bad(f"has {ndims} dimensions")
+            first_value = body + 2 + ndims
+            count = math.prod(raw[body + 2 : first_value])  # Python ints: 127 dims of 255 cannot overflow
+            values_end = first_value + count * _PARAMETER_TYPES[ptype]
+            if (
+                first_value > record_end
+                or values_end + 1 > record_end
+                or raw[values_end] >= 128
+                or values_end + 1 + raw[values_end] > record_end
+            ):
+                raise bad("holds more than the record (values or description overrun the next one)")
+            records.append((ident, name, ptype, count, raw[first_value : min(first_value + 4, values_end)]))
+        if step <= 0:
+            break
+        pos = next_at + step
+
+    values: dict[str, float] = {}
+    counts: dict[str, int] = {}
+    for gid, name, ptype, count, first in records:
+        if gid not in group_names:
+            raise DataError(f"corrupt C3D: parameter {name!r} belongs to group {gid}, which does not exist", source)
+        key = (group_names[gid], name)
+        counts[f"{key[0]}:{key[1]}"] = count
+        if key not in _SIZING_PARAMETERS or count == 0:
+            continue
+        if key in _TWO_WORD_PARAMETERS:
+            if ptype != 2 or count < 2:
+                continue
+            low, high = struct.unpack(">HH" if processor == 86 else "<HH", first)
+            number: float = low | high << 16
+        elif ptype == 4:
+            number = _decode_float(first, processor)
+        elif ptype == 2:
+            number = struct.unpack(int16, first[:2])[0]
+        elif ptype == 1:
+            number = first[0]
+        else:
+            continue
+        values[f"{key[0]}:{key[1]}"] = number
+    return values, counts, set(group_names.values())
+
+
+def _load_ezc3d(raw: bytes, source: str):
+    """ezc3d's c3d object of ``raw`` (ezc3d only reads paths: use a temp file)."""
+    import ezc3d  # deferred: importing it costs ~0.1 s, not needed for BVH work
+
+    fd, tmp = tempfile.mkstemp(suffix=".c3d", prefix="staggered-")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(raw)
+        try:
+            return ezc3d.c3d(tmp)
+        except Exception as exc:  # ezc3d raises OSError/RuntimeError/ValueError from C++
+            message = " ".join(str(exc).split()) or type(exc).__name__
+            raise DataError(f"ezc3d cannot read this C3D: {message}", source) from None
+    finally:
+        os.unlink(tmp)
+
+
+def _point_labels(parameters) -> list[str]:
+    """POINT:LABELS continued by LABELS2, LABELS3, ... (ezc3d's order)."""
+    group = parameters["POINT"]
+    labels = list(group.get("LABELS", {}).get("value", []))
+    k = 2
+    while f"LABELS{k}" in group:
+        labels.extend(group[f"LABELS{k}"]["value"])
+        k += 1
+    return [str(label) for label in labels]
+
+
+def _text(value: str) -> str:
+    """A C3D string as clean text.
+
+    C3D strings are bytes; ezc3d decodes them as UTF-8 and keeps the bytes
+    that are not (latin-1 accents of European software: ``é`` is 0xE9) as
+    lone surrogates, which can be neither printed nor written back.  Read
+    those bytes as latin-1.
+    """
+    return _SURROGATE.sub(lambda m: chr(ord(m.group()) - 0xDC00), value)
+
+
+_SURROGATE = re.compile("[\udc80-\udcff]")
+
+
+def _first_float(parameter: dict | None) -> float:
+    if not parameter:
+        return 0.0
+    value = np.asarray(parameter.get("value", []), dtype=float).ravel()
+    return float(value[0]) if value.size else 0.0
+
+
+# --------------------------------------------------------------------------
+# writing
+
+
+def write_c3d(path: str | os.PathLike[str], motion: MarkerMotion, force: bool = True) -> None:
+    """Write ``motion`` to ``path`` atomically: complete or not there at all.
+
+    See :func:`c3d_bytes` for what is written.  The bytes are built first, so
+    a failure leaves no file and an existing ``path`` untouched; then
+    :func:`~staggered_cli.io.files.write_atomic` writes them (temporary file
+    in the same directory, fsync, rename; ``force=False`` refuses an existing
+    ``path``; ``'-'`` is standard output there, as for BVH).
+    """
+    from .files import write_atomic
+
+    write_atomic(os.fspath(path), c3d_bytes(motion), force=force)
+
+
+def c3d_bytes(motion: MarkerMotion) -> bytes:
+    """The C3D file content of ``motion``.
+
+    With ``motion.source`` (the bytes of the file it was read from) the
+    source is rewritten with new points: every parameter, analog channel and
+    header event is kept.  Markers are matched to the source by label, so
+    their residuals and camera masks carry over; new markers get residual 0.
+    When the frame count differs from the source, frames keep their time
+    from the first frame on: analog samples are cut at the new end, or the
+    last sample is held to fill a longer clip, so the analog samples per
+    frame stay; the frame-count parameters (``POINT:FRAMES``,
+    ``TRIAL:ACTUAL_END_FIELD``, ``POINT:LONG_FRAMES``) follow.
+
+    Without a source a fresh C3D is built with POINT parameters only.
+
+    Gaps (a NaN in any coordinate of a sample) are written the C3D way:
+    coordinates 0 and residual -1; valid samples have residual >= 0.
+    Points are written as 4-byte floats in file units, so they round to
+    float32 precision.
+
+    Raises
+    ------
+    ValueError
+        ``motion`` is not consistent (shape, labels, rate, infinite values).
+    DataError
+        ``motion.source`` is not a readable C3D, more than 65535 frames, or
+        ezc3d refuses to write.
+    """
+    points = np.asarray(motion.points, dtype=np.float64)
+    labels = [str(label) for label in motion.labels]
+    _check_motion(points, labels, motion.rate)
+    n_frames, n_markers = points.shape[:2]
+    if n_frames > MAX_WRITE_FRAMES:
+        # ezc3d caps the header and POINT:FRAMES at 65535 and writes no other
+        # count: any reader, ezc3d included, would silently lose the rest
+        raise DataError(f"cannot write {n_frames} frames to C3D: ezc3d writes at most {MAX_WRITE_FRAMES}")
+
+    gap = np.isnan(points).any(axis=-1)  # (T, M)
+    ez_points = np.ones((4, n_markers, n_frames))
+    ez_points[:3] = np.where(gap[..., None], 0.0, points).transpose(2, 1, 0)
+    residuals = np.zeros((1, n_markers, n_frames))
+    camera_masks = np.zeros((7, n_markers, n_frames), dtype=bool)
+
+    if motion.source:
+        source_name = "source C3D of the motion"
+        _check_layout(motion.source, source_name)
+        c3d = _load_ezc3d(motion.source, source_name)
+        _carry_point_metadata(c3d, labels, n_frames, residuals, camera_masks)
+        _fit_analogs(c3d, n_frames, motion.rate)
+        _fit_frame_count_parameters(c3d["parameters"], n_frames)
+        events = _header_events(motion.source)
+    else:
+        import ezc3d
+
+        c3d = ezc3d.c3d()
+        events = None
+
+    residuals[0][gap.T] = -1.0
+    _clean_texts(c3d["parameters"])
+    point = c3d["parameters"]["POINT"]
+    _set_point_labels(point, labels, _descriptions_by_label(point))
+    _set_parameter(point, "RATE", 4, np.array([float(motion.rate)]))
+    if motion.units:
+        _set_parameter(point, "UNITS", -1, [motion.units])
+    c3d["data"]["points"] = ez_points
+    c3d["data"]["meta_points"] = {"residuals": residuals, "camera_masks": camera_masks}
+
+    with tempfile.TemporaryDirectory(prefix="staggered-") as tmpdir:
+        out = os.path.join(tmpdir, "out.c3d")
+        try:
+            c3d.write(out)
+        except Exception as exc:  # ezc3d's checks raise ValueError/TypeError/RuntimeError
+            message = " ".join(str(exc).split()) or type(exc).__name__
+            raise DataError(f"ezc3d cannot write this C3D: {message}") from None
+        payload = bytearray(Path(out).read_bytes())
+    if events is not None:
+        payload[_EVENTS_START:_EVENTS_STOP] = events
+    return bytes(payload)
+
+
+def _clean_texts(parameters) -> None:
+    """Make every string of ezc3d's parameter dict writable (see :func:`_text`).
+
+    ezc3d's writer passes strings to C++ as UTF-8 and fails on the lone
+    surrogates its reader produced; such bytes are written back as the
+    UTF-8 of their latin-1 reading.
+    """
+
+    def clean(value):
+        if isinstance(value, str):
+            return _text(value)
+        if isinstance(value, list):
+            return [clean(v) for v in value]
+        return value
+
+    if any(_text(group) != group for group in parameters):  # names too, keeping their order
+        groups = [(_text(group), parameters[group]) for group in parameters]
+        for group in list(parameters):
+            del parameters[group]
+        for group, entries in groups:
+            parameters[group] = entries
+    for group in parameters:
+        entries = parameters[group]
+        if any(_text(name) != name for name in entries):
+            renamed = {_text(name): entry for name, entry in entries.items()}
+            entries.clear()
+            entries.update(renamed)
+        for name, entry in entries.items():
+            if name == "__METADATA__":
+                entry["DESCRIPTION"] = clean(entry["DESCRIPTION"])
+            else:
+                entry["description"] = clean(entry["description"])
+                entry["value"] = clean(entry["value"])
+
+
+def _check_motion(points: np.ndarray, labels: list[str], rate: float) -> None:
+    if points.ndim != 3 or points.shape[2] != 3:
+        raise ValueError(f"motion.points must have shape (frames, markers, 3), got {points.shape}")
+    if points.shape[0] == 0:
+        raise ValueError("motion.points has no frames")
+    if len(labels) != points.shape[1]:
+        raise ValueError(f"motion.labels has {len(labels)} entries for {points.shape[1]} markers")
+    if np.isinf(points).any():
+        raise ValueError("motion.points holds infinite values")
+    if not (np.isfinite(rate) and rate > 0):
+        raise ValueError(f"motion.rate must be a positive frame rate in Hz, got {rate!r}")
+
+
+def _carry_point_metadata(
+    c3d,
+    labels: list[str],
+    n_frames: int,
+    residuals: np.ndarray,
+    camera_masks: np.ndarray,
+) -> None:
+    """Copy the source's residuals (1, M, T) and camera masks (7, M, T) by label.
+
+    Frames past the source's end keep residual 0; a source gap that now has
+    a value gets residual 0 too (a negative residual would hide it).
+    """
+    src_residuals = c3d["data"]["meta_points"]["residuals"]  # (1, Ms, Ts)
+    src_masks = c3d["data"]["meta_points"]["camera_masks"]  # (7, Ms, Ts)
+    src_labels = _point_labels(c3d["parameters"])[: src_residuals.shape[1]]
+    index = {}
+    for i, label in enumerate(src_labels):
+        index.setdefault(label, i)
+    columns = np.array([index.get(label, -1) for label in labels], dtype=int)
+    have = np.flatnonzero(columns >= 0)
+    overlap = min(n_frames, src_residuals.shape[2])
+    if have.size == 0 or overlap == 0:
+        return
+    residuals[:, have, :overlap] = np.maximum(src_residuals[:, columns[have], :overlap], 0.0)
+    if src_masks.shape[0] == camera_masks.shape[0] and src_masks.shape[2] == src_residuals.shape[2]:
+        camera_masks[:, have, :overlap] = src_masks[:, columns[have], :overlap]
+
+
+def _fit_analogs(c3d, n_frames: int, rate: float) -> None:
+    """Resize the analog block (1, channels, T * r) to ``n_frames`` frames.
+
+    The analog samples per frame ``r`` stay; samples keep their time from
+    the first frame on (cut at the end, or the last sample held).
+    """
+    parameters = c3d["parameters"]
+    analogs = np.asarray(c3d["data"]["analogs"], dtype=np.float64)  # (1, A, S)
+    src_frames = c3d["data"]["points"].shape[2]
+    old_point_rate = _first_float(parameters["POINT"].get("RATE")) or rate
+    old_analog_rate = _first_float(parameters["ANALOG"].get("RATE"))
+    if analogs.shape[1] and src_frames:
+        per_frame = analogs.shape[2] // src_frames
+    else:
+        per_frame = int(round(old_analog_rate / old_point_rate)) if old_point_rate > 0 else 0
+    samples = n_frames * per_frame
+    if analogs.shape[2] >= samples:
+        analogs = analogs[:, :, :samples]
+    elif analogs.shape[2] > 0:
+        analogs = np.pad(analogs, ((0, 0), (0, 0), (0, samples - analogs.shape[2])), mode="edge")
+    else:
+        analogs = np.zeros((1, analogs.shape[1], samples))
+    c3d["data"]["analogs"] = analogs
+    _cut_to_used(parameters["ANALOG"], analogs.shape[1])
+    if "RATE" in parameters["ANALOG"] and per_frame:
+        # ezc3d checks ANALOG:RATE == samples per frame x POINT:RATE
+        parameters["ANALOG"]["RATE"]["value"] = np.array([per_frame * float(rate)])
+
+
+def _cut_to_used(analog: dict, n_channels: int) -> None:
+    """Cut the per-channel ANALOG parameters to the channels in use.
+
+    Files often declare more LABELS/SCALE/OFFSET entries than ANALOG:USED
+    (Eb015pi: 32 for 16); ezc3d's writer requires exactly one per channel
+    and would otherwise drop SCALE, UNITS and DESCRIPTIONS.
+    """
+    for key in ("LABELS", "DESCRIPTIONS", "UNITS", "SCALE", "OFFSET"):
+        if key in analog and len(analog[key]["value"]) > n_channels:
+            analog[key]["value"] = analog[key]["value"][:n_channels]
+
+
+def _fit_frame_count_parameters(parameters, n_frames: int) -> None:
+    """Keep the optional frame-count parameters in step with ``n_frames``.
+
+    ezc3d updates POINT:FRAMES itself; readers that prefer TRIAL or
+    LONG_FRAMES (Vicon, BTK) would otherwise see the source's count.
+    """
+    trial = parameters["TRIAL"] if "TRIAL" in parameters else {}
+    if "ACTUAL_START_FIELD" in trial and "ACTUAL_END_FIELD" in trial:
+        start_words = np.asarray(trial["ACTUAL_START_FIELD"]["value"], dtype=np.int64).ravel()
+        end_words = np.asarray(trial["ACTUAL_END_FIELD"]["value"], dtype=np.int64).ravel()
+        if start_words.size == 2 and end_words.size == 2:
+            # two 16-bit words, low word first, read as unsigned
+            start = int(start_words[0] & 0xFFFF) | int(start_words[1] & 0xFFFF) << 16
+            end = start + n_frames - 1
+            trial["ACTUAL_END_FIELD"]["value"] = np.array([_as_int16(end & 0xFFFF), _as_int16(end >> 16)])
+    point = parameters["POINT"]
+    if "LONG_FRAMES" in point:
+        point["LONG_FRAMES"]["value"] = np.array([float(n_frames)])
+
+
+def _as_int16(word: int) -> int:
+    """An unsigned 16-bit word as the signed value ezc3d stores for INT parameters."""
+    return word - (1 << 16) if word >= 1 << 15 else word
+
+
+def _descriptions_by_label(point: dict) -> dict[str, str]:
+    labels = list(point.get("LABELS", {}).get("value", []))
+    descriptions = list(point.get("DESCRIPTIONS", {}).get("value", []))
+    k = 2
+    while f"LABELS{k}" in point:
+        labels.extend(point[f"LABELS{k}"]["value"])
+        descriptions.extend(point.get(f"DESCRIPTIONS{k}", {}).get("value", []))
+        k += 1
+    return {label: desc for label, desc in zip(labels, descriptions, strict=False)}
+
+
+def _set_point_labels(point: dict, labels: list[str], descriptions: dict[str, str]) -> None:
+    """POINT:LABELS (and LABELS2... past 255 markers), DESCRIPTIONS to match."""
+    chunks = _chunks(labels, _LABELS_PER_PARAMETER)
+    point["LABELS"]["value"] = chunks[0] if chunks else []
+    for k, chunk in enumerate(chunks[1:], start=2):
+        _set_parameter(point, f"LABELS{k}", -1, chunk)
+    k = max(len(chunks), 1) + 1
+    while f"LABELS{k}" in point:  # stale continuations of a longer source list
+        del point[f"LABELS{k}"]
+        k += 1
+    if len(labels) <= _LABELS_PER_PARAMETER and "DESCRIPTIONS" in point:
+        # one entry per marker, or ezc3d's writer drops the parameter
+        point["DESCRIPTIONS"]["value"] = [descriptions.get(label, "") for label in labels]
+
+
+def _set_parameter(group: dict, name: str, ptype: int, value) -> None:
+    """Set a parameter's value in ezc3d's dict, creating it when absent.
+
+    ``ptype`` is the C3D type code (-1 char, 1 byte, 2 int, 4 float).
+    """
+    if name in group:
+        group[name]["value"] = value
+    else:
+        group[name] = {"type": ptype, "description": "", "is_locked": False, "value": value}
+
+
+def _chunks(items: list[str], size: int) -> list[list[str]]:
+    return [items[i : i + size] for i in range(0, len(items), size)]
+
+
+def _header_events(raw: bytes) -> bytes:
+    """The header event block of ``raw`` (bytes 298..468) in Intel byte order.
+
+    ezc3d writes Intel files and drops header events; the block is copied
+    over its output.  Times are the only multi-byte values to convert.
+    """
+    processor = raw[(raw[0] - 1) * _BLOCK + 3]
+    block = bytearray(raw[_EVENTS_START:_EVENTS_STOP])
+    if processor != _INTEL:
+        word = _word_reader(raw, processor)
+        block[0:4] = struct.pack("<HH", word(149), word(150))
+        times = [_decode_float(raw[i : i + 4], processor) for i in range(_EVENT_TIMES.start, _EVENT_TIMES.stop, 4)]
+        start = _EVENT_TIMES.start - _EVENTS_START
+        block[start : start + 72] = struct.pack("<18f", *times)
+    return bytes(block)
