@@ -38,11 +38,14 @@ PROG = "staggered"
 #: command name -> "module:attribute" of its click command.
 COMMANDS: dict[str, str] = {
     "info": "staggered_cli.cli.info:info",
+    "extract": "staggered_cli.cli.extract:extract",
     "cull": "staggered_cli.cli.cull:cull",
     "edit-pose": "staggered_cli.cli.edit_pose:edit_pose",
     "succession": "staggered_cli.cli.succession:succession",
     "randomize": "staggered_cli.cli.randomize:randomize",
     "bake": "staggered_cli.cli.bake:bake",
+    "plot": "staggered_cli.cli.plot:plot",
+    "preview": "staggered_cli.cli.preview:preview",
 }
 
 EXIT_INTERRUPTED = 130

@@ -1,0 +1,1 @@
+"""Operations: pure functions from document (or motion) to document (or motion)."""

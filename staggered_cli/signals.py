@@ -1,0 +1,457 @@
+"""Evidence for staggered poses (paper section 4.1, SPEC section 4).
+
+Local evidence
+    Every control variable gets one or more *motion trails*, curves of
+    points ``(T, 3)`` over the frames:
+
+    * a rotation variable (joint ``j``): for each child joint and End Site
+      of ``j``, ``m1`` = the unit axis toward it rotated by ``j``'s *local*
+      rotation, and ``m2`` = a unit axis orthogonal to that limb rotated the
+      same way (it sees twist about the limb).  A child at zero distance
+      (CMU's ``LHipJoint`` sits on ``Hips``) is replaced by the first
+      descendant at a nonzero rest distance; a joint with no tip at all uses
+      its own bone direction;
+    * a BVH translation variable: the joint's local translation (for the
+      root, its position);
+    * a C3D marker: its trajectory.
+
+    The *scaled curvature* of a trail at a sample is ``κ = n · e / |e|``
+    with ``n`` the discrete Frenet normal (the bisector of the turn) and
+    ``e`` each adjacent edge pointing away from the sample, averaged over the
+    two edges weighted by their lengths: the sine of half the turning angle,
+    in [0, 1].  A sample with a zero-length (or invalid) adjacent edge
+    scores 0.  Edges join samples :data:`CURVATURE_EDGE` seconds apart (one
+    frame at 30 Hz, four at 120 Hz), so that a turn scores the same at every
+    frame rate.  Per variable ``p_i = max`` over its trails, then iterated
+    Laplacian smoothing.
+
+Weights (``w_i``, file units: how far the variable moves things)
+    Rotation: ``Σ_j |x_i - x_j| · arclength(m_j)`` over the variable's limbs,
+    with the rest length of the limb and, for each limb, the longer of its
+    two trails (so that pure twist counts).  ``limb length × angle`` is the
+    distance the limb's end travels relative to the joint.
+    Translation (root, C3D marker): the arc length of the trail itself, the
+    same quantity, the distance travelled: with the figure height ``h`` this
+    is ``(arclength / h) · h``, a travel relative to the figure times a limb
+    scale of one figure height, so units cancel against the rotation
+    weights and it does not depend on the file's units.  (A walk's root
+    weighs about as much as one leg joint.)  Arc lengths are measured
+    along the same fixed-duration edges as the curvature, so that sampling
+    noise does not make them grow with the frame rate.
+
+Amount of motion
+    ``speed`` (T,): the rate at which the weights accumulate, summed over
+    the variables and divided by the figure height (figure heights per
+    second).  It is what the significance gate of
+    :mod:`staggered_cli.ops.extract` looks at.
+
+Discontinuities
+    An edge between two frames where any rotation variable turns by more
+    than :data:`JUMP_DEGREES` (CMU's T-pose first frame), or any position
+    trail moves by more than :data:`JUMP_FIGURE_HEIGHTS` of the figure, is a
+    *break*: no trail edge crosses it (no curvature, no arc length, no
+    speed) and smoothing does not diffuse across it.  C3D samples in a gap
+    are not used either (the filled values are straight lines).
+
+Amounts of filtering are durations in seconds, converted per frame rate:
+iterated Laplacian smoothing is a diffusion, so the iteration count for a
+given duration grows with the frame rate squared.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import quat
+from .document import dense_variables
+from .motion import BvhMotion, MarkerMotion
+from .representation import ROTATION
+from .skeleton import Skeleton, end_site_positions, figure_height, forward_kinematics
+
+#: A rotation step larger than this between two frames is a discontinuity of
+#: that variable (degrees): no joint turns 100° in one frame, even at 30 Hz.
+JUMP_DEGREES = 100.0
+#: A whole-pose jump (CMU's T-pose first frame, whose largest step can be
+#: under 100°): at least this share of the moving rotation variables ...
+POSE_JUMP_SHARE = 0.25
+#: ... each turn by more than this (degrees) and by more than ten times
+#: their own median step.
+POSE_JUMP_DEGREES = 10.0
+#: A position step larger than this fraction of the figure height between two
+#: frames is a discontinuity (no body part moves a quarter of its height in 4 ms-33 ms).
+JUMP_FIGURE_HEIGHTS = 0.25
+#: Duration of a curvature edge, seconds: at 30 Hz one frame, at 120 Hz four.
+#: The turning angle between edges of a fixed duration measures the same turn
+#: at every frame rate (one-frame edges turn four times less at 120 Hz, and
+#: their directions are noisier), so 30 Hz and 120 Hz captures agree.
+CURVATURE_EDGE = 1.0 / 30.0
+#: Default smoothing of the local evidence: standard deviation, seconds.
+DEFAULT_SMOOTHING = 0.025
+#: Default tent filter full base width, seconds (paper: 0.15 s).
+DEFAULT_FILTER_WIDTH = 0.15
+#: Default duration of a contact pulse, seconds.
+DEFAULT_PULSE = 0.05
+
+_LAMBDA = 0.25  # Laplacian step: kernel [1/4, 1/2, 1/4], variance 0.5 frame² per iteration
+_ZERO_EDGE = 1e-12  # relative to the trail's scale: an edge this short has no direction
+
+
+@dataclass(frozen=True)
+class LocalEvidence:
+    """Per-variable evidence of a clip.
+
+    Attributes
+    ----------
+    names : (V,) variable names in the document's global order
+        (translations first, then rotations).
+    p : (T, V) smoothed local evidence, in [0, 1].
+    weights : (V,) variable weights, file units.
+    speed : (T,) amount of motion: ``Σ_i`` (rate of change of ``w_i``) per
+        frame, in figure heights per second (0 across breaks).
+    breaks : (T-1,) bool, edges between frames that are discontinuities.
+    rate : frames per second.
+    figure_height : file units.
+    """
+
+    names: tuple[str, ...]
+    p: np.ndarray
+    weights: np.ndarray
+    speed: np.ndarray
+    breaks: np.ndarray
+    rate: float
+    figure_height: float
+
+
+# --- basic operators ------------------------------------------------------------
+
+
+def scaled_curvature(
+    trail: np.ndarray, valid: np.ndarray | None = None, scale: float = 1.0, span: int = 1
+) -> np.ndarray:
+    """Scaled curvature ``κ = n · e / |e|`` of trails, in [0, 1].
+
+    Parameters
+    ----------
+    trail : (T, n, 3) points of ``n`` trails over ``T`` frames.
+    valid : (T-1, n) bool or None, which one-frame edges may be used.
+    scale : an edge shorter than ``1e-12 · scale`` counts as zero length.
+    span : frames per edge: the sample at frame ``f`` is joined to those at
+        ``f - span`` and ``f + span`` (an edge is valid when all the one-frame
+        edges it covers are).
+
+    Returns
+    -------
+    (T, n), zero within ``span`` frames of the ends and wherever an adjacent
+    edge is invalid or of zero length.
+    """
+    trail = np.asarray(trail, dtype=float)
+    T = trail.shape[0]
+    span = max(int(span), 1)
+    out = np.zeros(trail.shape[:2])
+    if T < 2 * span + 1:
+        return out
+    e = trail[span:] - trail[:-span]  # (T-span, n, 3): edge from f to f+span
+    length = np.linalg.norm(e, axis=-1)
+    ok = length > _ZERO_EDGE * scale
+    if valid is not None:
+        bad = np.cumsum(np.concatenate([np.zeros((1,) + valid.shape[1:]), ~valid]), axis=0)
+        ok &= (bad[span:] - bad[:-span]) == 0
+    unit = e / np.where(ok, length, 1.0)[..., None]
+    prev, nxt = unit[:-span], unit[span:]  # edges before and after each interior sample
+    turn = nxt - prev
+    tlen = np.linalg.norm(turn, axis=-1)
+    n = turn / np.where(tlen > 0, tlen, 1.0)[..., None]
+    # both edges point away from the sample: -prev and nxt
+    k_prev = np.sum(n * -prev, axis=-1)
+    k_next = np.sum(n * nxt, axis=-1)
+    lp, ln = length[:-span], length[span:]
+    good = ok[:-span] & ok[span:] & (tlen > 0)
+    k = (lp * k_prev + ln * k_next) / np.where(good, lp + ln, 1.0)
+    out[span:-span] = np.where(good, np.clip(k, 0.0, 1.0), 0.0)
+    return out
+
+
+def edge_span(rate: float) -> int:
+    """Frames per curvature edge: the nearest whole number of frames to
+    :data:`CURVATURE_EDGE` seconds, at least one."""
+    return max(int(round(CURVATURE_EDGE * rate)), 1)
+
+
+def smoothing_iterations(duration: float, rate: float) -> tuple[int, float]:
+    """Iterations of Laplacian smoothing equivalent to a Gaussian of standard
+    deviation ``duration`` seconds at ``rate`` Hz.
+
+    Each iteration with step 1/4 adds a variance of 1/2 frame², so the count
+    grows with ``rate²``.  Returns the number of full iterations and the step
+    of one last partial iteration (0 if none) that makes the variance exact.
+    """
+    var = (max(duration, 0.0) * rate) ** 2
+    full = int(np.floor(var / (2 * _LAMBDA) + 1e-9))
+    rest = var - 2 * _LAMBDA * full
+    return full, (rest / 2.0 if rest > 1e-9 else 0.0)
+
+
+def laplacian_smooth(x: np.ndarray, duration: float, rate: float, breaks: np.ndarray | None = None) -> np.ndarray:
+    """Iterated Laplacian smoothing along the first axis.
+
+    Parameters
+    ----------
+    x : (T, ...) signals.
+    duration : standard deviation of the equivalent Gaussian, seconds.
+    rate : frames per second.
+    breaks : (T-1,) bool or None; nothing diffuses across a break, nor past
+        the ends of the clip.
+
+    Returns
+    -------
+    (T, ...) a new array.
+    """
+    x = np.array(x, dtype=float, copy=True)
+    T = x.shape[0]
+    if T < 2:
+        return x
+    full, last = smoothing_iterations(duration, rate)
+    cond = np.ones(T - 1) if breaks is None else (~np.asarray(breaks, dtype=bool)).astype(float)
+    cond = cond.reshape((T - 1,) + (1,) * (x.ndim - 1))
+    for lam in [_LAMBDA] * full + ([last] if last > 0 else []):
+        flux = cond * np.diff(x, axis=0)  # (T-1, ...)
+        x[:-1] += lam * flux
+        x[1:] -= lam * flux
+    return x
+
+
+def tent_filter(x: np.ndarray, width: float, rate: float) -> np.ndarray:
+    """Tent (triangle) low-pass filter along the first axis.
+
+    ``width`` is the full base width in seconds.  Near the ends of the clip
+    the kernel is renormalized over the samples that exist, so the ends are
+    not pulled toward zero.
+    """
+    x = np.asarray(x, dtype=float)
+    T = x.shape[0]
+    half = 0.5 * width * rate  # frames
+    r = int(np.ceil(half)) - 1 if half > 0 else 0
+    if r < 1 or T < 2:
+        return x.copy()
+    k = np.arange(-r, r + 1)
+    kernel = 1.0 - np.abs(k) / half
+    flat = x.reshape(T, -1)
+    pad = np.pad(flat, ((r, r), (0, 0)))
+    ones = np.pad(np.ones(T), r)
+    out = np.zeros_like(flat)
+    norm = np.zeros(T)
+    for kk, w in zip(k, kernel, strict=True):  # loop over kernel taps, not frames
+        out += w * pad[r + kk : r + kk + T]
+        norm += w * ones[r + kk : r + kk + T]
+    return (out / norm[:, None]).reshape(x.shape)
+
+
+def local_maxima(x: np.ndarray) -> np.ndarray:
+    """Frames of the local maxima of a 1-D signal (interior; a plateau gives
+    its middle frame; plateaus of zero are ignored)."""
+    from scipy.signal import find_peaks
+
+    x = np.asarray(x, dtype=float)
+    peaks, _ = find_peaks(x)
+    return peaks[x[peaks] > 0.0]
+
+
+def contact_pulses(boundaries: np.ndarray, n_frames: int, rate: float, duration: float = DEFAULT_PULSE) -> np.ndarray:
+    """A binary signal (T,) that is 1 within ``duration`` seconds (full width)
+    centred on each boundary frame.  A fixed duration, not one frame, so the
+    pulse weighs the same at every frame rate."""
+    half = max(0.5 * duration * rate, 0.5)
+    b = np.asarray(boundaries, dtype=float)
+    lo = np.clip(np.ceil(b - half + 1e-9), 0, n_frames).astype(int)  # frames with |f - b| < half
+    hi = np.clip(np.floor(b + half - 1e-9) + 1, 0, n_frames).astype(int)
+    edges = np.zeros(n_frames + 1)
+    np.add.at(edges, lo, 1.0)
+    np.add.at(edges, hi, -1.0)
+    return (np.cumsum(edges)[:n_frames] > 0).astype(float)
+
+
+def pose_probability(
+    ev: LocalEvidence,
+    contact: np.ndarray | None = None,
+    contact_weight: float = 0.0,
+    filter_width: float = DEFAULT_FILTER_WIDTH,
+) -> np.ndarray:
+    """``P(t) = tent(Σ w_i p_i / Σ w_i)`` with the contact signal as one more
+    weighted term (T,)."""
+    num = ev.p @ ev.weights
+    den = float(np.sum(ev.weights))
+    if contact is not None and contact_weight > 0:
+        num = num + contact_weight * np.asarray(contact, dtype=float)
+        den += contact_weight
+    mean = num / den if den > 0 else np.zeros(len(num))
+    return tent_filter(mean, filter_width, ev.rate)
+
+
+# --- trails ---------------------------------------------------------------------
+
+
+def _orthogonal(axis: np.ndarray) -> np.ndarray:
+    """A unit vector orthogonal to unit ``axis`` (3,): the principal axis
+    least aligned with it, made orthogonal."""
+    e = np.zeros(3)
+    e[int(np.argmin(np.abs(axis)))] = 1.0
+    v = e - np.dot(e, axis) * axis
+    return v / np.linalg.norm(v)
+
+
+def limb_axes(skeleton: Skeleton, j: int, scale: float) -> list[tuple[np.ndarray, float]]:
+    """Rest-pose limbs of joint ``j``: (unit axis in ``j``'s frame, length).
+
+    Toward each child and End Site; a tip at zero distance is replaced by
+    the first descendants at a nonzero rest distance (summing offsets).  A
+    joint with no tip uses its own bone direction (length 0: no weight).
+    """
+    eps = 1e-9 * scale
+    out = []
+    stack = [(c, skeleton.offsets[c]) for c in skeleton.children(j)]
+    stack += [(-1, o) for p, o in zip(skeleton.end_parents, skeleton.end_offsets, strict=True) if p == j]
+    while stack:
+        c, vec = stack.pop(0)
+        n = float(np.linalg.norm(vec))
+        if n > eps:
+            out.append((vec / n, n))
+        elif c >= 0:
+            stack += [(g, vec + skeleton.offsets[g]) for g in skeleton.children(c)]
+            stack += [(-1, vec + o) for p, o in zip(skeleton.end_parents, skeleton.end_offsets, strict=True) if p == c]
+    if not out:
+        own = skeleton.offsets[j]
+        n = float(np.linalg.norm(own))
+        out.append((own / n if n > eps else np.array([1.0, 0.0, 0.0]), 0.0))
+    return out
+
+
+def rotation_steps(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Discontinuities of rotation tracks ``rot (T, V, 4)``.
+
+    Returns
+    -------
+    breaks : (T-1,) bool, whole-pose jumps (a T-pose frame): at least
+        :data:`POSE_JUMP_SHARE` of the variables that move at all turn by more
+        than :data:`POSE_JUMP_DEGREES` and ten times their median step.
+    jumps : (T-1, V) bool, single-variable jumps of more than
+        :data:`JUMP_DEGREES` (a flipping thumb), or a whole-pose break.
+    """
+    T, V = rot.shape[:2]
+    if T < 2 or V == 0:
+        return np.zeros(max(T - 1, 0), dtype=bool), np.zeros((max(T - 1, 0), V), dtype=bool)
+    step = np.degrees(quat.angle_between(rot[:-1], rot[1:]))  # (T-1, V)
+    typical = np.median(step, axis=0)  # (V,)
+    big = step > np.maximum(POSE_JUMP_DEGREES, 10.0 * typical)
+    moving = int(np.count_nonzero(step.max(axis=0) > 0))
+    breaks = big.sum(axis=1) >= max(2, int(np.ceil(POSE_JUMP_SHARE * moving)))
+    return breaks, (step > JUMP_DEGREES) | breaks[:, None]
+
+
+def _span_valid(valid: np.ndarray, span: int) -> np.ndarray:
+    """(T-span, n) validity of edges spanning ``span`` frames from one-frame validity (T-1, n)."""
+    bad = np.cumsum(np.concatenate([np.zeros((1,) + valid.shape[1:]), ~valid]), axis=0)
+    return (bad[span:] - bad[:-span]) == 0
+
+
+def trail_measures(
+    trail: np.ndarray, valid: np.ndarray, span: int, rate: float, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Curvature, arc length and speed of trails.
+
+    Parameters
+    ----------
+    trail : (T, n, 3).
+    valid : (T-1, n) bool, usable one-frame edges.
+    span : frames per edge (:func:`edge_span`).
+    rate : frames per second.
+    scale : length scale of the trail (zero-length edges).
+
+    Returns
+    -------
+    kappa : (T, n) scaled curvature.
+    arc : (n,) arc length along edges of ``span`` frames (divided by
+        ``span``: the mean over the ``span`` interleaved polylines), so that
+        sampling noise does not make it grow with the frame rate.
+    speed : (T, n) trail units per second, from the same edges (0 where no
+        valid edge covers a frame).
+    """
+    T, n = trail.shape[:2]
+    kappa = scaled_curvature(trail, valid, scale, span)
+    if T <= span:
+        return kappa, np.zeros(n), np.zeros((T, n))
+    ok = _span_valid(valid, span)
+    step = np.where(ok, np.linalg.norm(trail[span:] - trail[:-span], axis=-1), 0.0)  # (T-span, n)
+    arc = step.sum(axis=0) / span
+    # each edge covers frames f .. f+span: spread its speed over them
+    acc = np.zeros((T + 1, n))
+    cnt = np.zeros((T + 1, n))
+    acc[: T - span] += step
+    acc[span + 1 :] -= step
+    cnt[: T - span] += ok
+    cnt[span + 1 :] -= ok
+    acc, cnt = np.cumsum(acc, axis=0)[:T], np.cumsum(cnt, axis=0)[:T]
+    speed = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0) * rate / span
+    return kappa, arc, speed
+
+
+def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = None) -> LocalEvidence:
+    """Trails, curvature, weights and the amount of motion of a clip.
+
+    Parameters
+    ----------
+    motion : a BVH or C3D clip.
+    smoothing : standard deviation (seconds) of the Laplacian smoothing of
+        ``p``; default :data:`DEFAULT_SMOOTHING`.
+    """
+    smoothing = DEFAULT_SMOOTHING if smoothing is None else float(smoothing)
+    T = motion.n_frames
+    rate = float(motion.rate)
+    span = edge_span(rate)
+    variables = dense_variables(motion)
+    names = tuple(n for _, ns, _, _ in variables for n in ns)
+    V = len(names)
+    kappa = np.zeros((T, V))
+    weights = np.zeros(V)
+    speed = np.zeros(T)
+    breaks = np.zeros(max(T - 1, 0), dtype=bool)
+    if isinstance(motion, BvhMotion):
+        sk = motion.skeleton
+        wr, wp = forward_kinematics(sk, motion.local_rotations(), motion.local_translations())
+        height = figure_height(sk, wp, end_site_positions(sk, wr, wp))
+        rot_vals = next((d for k, _, _, d in variables if k == ROTATION), np.zeros((T, 0, 4)))
+        breaks, rot_jumps = rotation_steps(rot_vals)
+        col = 0
+        for kind, vnames, targets, dense in variables:
+            for n in range(len(vnames)):
+                if kind == ROTATION:
+                    limbs = limb_axes(sk, int(targets[n]), height)
+                    axes = np.array([a for a, _ in limbs] + [_orthogonal(a) for a, _ in limbs])  # (2L, 3)
+                    lengths = np.array([ln for _, ln in limbs])
+                    trail = quat.mul_vec(dense[:, n, None, :], axes[None])  # (T, 2L, 3)
+                    valid = np.repeat(~rot_jumps[:, n, None], len(axes), axis=1)
+                    k, arc, sp = trail_measures(trail, valid, span, rate)
+                    L = len(limbs)
+                    longer = np.where(arc[:L] >= arc[L:], np.arange(L), np.arange(L) + L)
+                    weights[col + n] = float(np.dot(lengths, arc[longer]))
+                    speed += sp[:, longer] @ lengths
+                else:
+                    trail = dense[:, n, None, :]
+                    jump = np.linalg.norm(np.diff(trail, axis=0), axis=-1) > JUMP_FIGURE_HEIGHTS * height
+                    k, arc, sp = trail_measures(trail, ~jump & ~breaks[:, None], span, rate, height)
+                    weights[col + n] = float(arc[0])
+                    speed += sp[:, 0]
+                kappa[:, col + n] = k.max(axis=1)
+            col += len(vnames)
+    else:
+        height = float(motion.figure_height())
+        _, _, _, dense = variables[0]  # gaps filled; samples in a gap are not used
+        seen = np.all(np.isfinite(motion.points), axis=2)  # (T, M)
+        jump = np.linalg.norm(np.diff(dense, axis=0), axis=-1) > JUMP_FIGURE_HEIGHTS * height  # (T-1, M)
+        kappa, weights, sp = trail_measures(dense, seen[:-1] & seen[1:] & ~jump, span, rate, height)
+        speed = sp.sum(axis=1)
+    if T > 1:
+        speed = speed / height
+    p = laplacian_smooth(kappa, smoothing, rate, breaks)
+    return LocalEvidence(names, p, weights, speed, breaks, rate, float(height))

@@ -1,0 +1,445 @@
+"""Extraction (paper section 4, Appendix B; SPEC sections 4 and 6) on the real
+motion capture: round trip, determinism, contacts against an independent
+reference, poses on contact changes, sparse idle motion, frame-rate
+consistency, and the signal operators on curves whose answers are known."""
+
+from __future__ import annotations
+
+import functools
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.ndimage import gaussian_filter1d
+
+from staggered_cli import contacts as C
+from staggered_cli import document as D
+from staggered_cli import signals as S
+from staggered_cli.errors import UsageError
+from staggered_cli.io.bvh import read_bvh
+from staggered_cli.io.document import document_bytes
+from staggered_cli.motion import BvhMotion, channels_from_local
+from staggered_cli.ops.extract import contact_poses, extract, refinement_frames
+
+from .conftest import BVH_FILES, C3D_FILES, mocap
+
+#: Clips whose contacts are checked against the reference (walk, run, jump).
+CONTACT_CLIPS = [
+    "cmu_02_01_walk.bvh",
+    "bandai1_walk_normal_001.bvh",
+    "bandai2_run_normal_001.bvh",
+    "cmu_01_01_forward_jumps.bvh",
+    "cmu3dsmax_131_02_start_walk_stop.bvh",
+    "c3dorg_sample01_Eb015pi_walk.c3d",
+    "ezc3d_BTS_walk_gaps.c3d",
+]
+#: CMU cgspeed files whose frame 0 is a T-pose.
+TPOSE = ("cmu_01_01_forward_jumps.bvh", "cmu_115_06_pick_up_box.bvh")
+
+
+@functools.cache
+def _motion(name: str):
+    path = mocap(name)
+    if name.endswith(".c3d"):
+        from staggered_cli.io.c3d import read_c3d
+
+        return read_c3d(path)
+    return read_bvh(path)
+
+
+@functools.cache
+def _extracted(name: str):
+    """Each file is extracted once for the whole module."""
+    return extract(_motion(name), source_name=name)
+
+
+def _rate(doc) -> float:
+    return float(doc.source.rate)
+
+
+def _frames(times, doc) -> np.ndarray:
+    return np.rint(np.asarray(times) * _rate(doc)).astype(int)
+
+
+# --- round trip and determinism ---------------------------------------------------
+
+
+@pytest.mark.parametrize("name", BVH_FILES)
+def test_bvh_extract_then_bake_reproduces_the_source(name):
+    doc = _extracted(name)
+    src = _motion(name)
+    rot, tr = D.local_pose(doc, doc.frame_times)
+    ch = channels_from_local(src.skeleton, rot, tr, src.channels)
+    assert np.abs(ch - src.channels).max() < 1e-6
+    # and the document is a real one: several poses, refined, valid knots
+    assert doc.n_poses >= 2
+    ref = doc.refinements()
+    assert np.all(ref[[0, -1]] == 0)
+
+
+@pytest.mark.parametrize("name", C3D_FILES)
+def test_c3d_extract_then_bake_reproduces_the_source(name):
+    doc = _extracted(name)
+    src = _motion(name)
+    pts = D.marker_points(doc, doc.frame_times)
+    np.testing.assert_array_equal(np.isnan(pts), np.isnan(src.points))
+    assert np.nanmax(np.abs(pts - src.points)) < 1e-6 * src.figure_height()
+
+
+@pytest.mark.parametrize("name", ["bandai2_run_normal_001.bvh", "ezc3d_BTS_walk_gaps.c3d"])
+def test_extract_is_deterministic(name):
+    m1, a1 = D.to_parts(_extracted(name))
+    m2, a2 = D.to_parts(extract(_motion(name), source_name=name))
+    assert json.dumps(m1, sort_keys=True) == json.dumps(m2, sort_keys=True)
+    assert sorted(a1) == sorted(a2)
+    for key in a1:
+        np.testing.assert_array_equal(a1[key], a2[key])
+    assert document_bytes(m1, a1, "npz") == document_bytes(m2, a2, "npz")
+
+
+def test_document_records_signals_and_parameters():
+    doc = _extracted("cmu_02_01_walk.bvh")
+    T, V = doc.n_frames, len(doc.variable_names)
+    assert doc.signals["P"].shape == (T,)
+    assert doc.signals["p"].shape == (T, V)
+    assert doc.signals["weights"].shape == (V,)
+    assert doc.signals["contact"].shape == (T,)
+    assert np.all((doc.signals["p"] >= 0) & (doc.signals["p"] <= 1))
+    assert set(doc.parameters) >= {
+        "smoothing", "filter_width", "refine_window", "min_contact", "contact_tolerance", "significance",
+        "contact_joints",
+    }
+    json.dumps(doc.parameters)  # JSON-able
+    assert np.all(np.isinf(doc.priority[[0, -1]]))
+    inner = doc.priority[1:-1]
+    assert np.all(np.isfinite(inner)) and np.all(inner >= 0)
+    # w_k = P(t_k)(t_{k+1} - t_{k-1})
+    f = _frames(doc.pose_t, doc)
+    np.testing.assert_allclose(inner, doc.signals["P"][f[1:-1]] * (doc.pose_t[2:] - doc.pose_t[:-2]))
+
+
+@pytest.mark.parametrize("name", ["cmu_01_01_forward_jumps.bvh", "bandai1_dance-short_normal_001.bvh",
+                                  "cmu_85_12_breakdance_long.c3d"])
+def test_refinements_are_whole_frames_bounded_and_closer_to_their_pose(name):
+    doc = _extracted(name)
+    ref = doc.refinements()
+    ft = doc.frame_time
+    np.testing.assert_allclose(ref / ft, np.rint(ref / ft), atol=1e-6)
+    assert np.abs(ref).max() <= 0.25 + 1e-9
+    ext = doc.pose_t[:, None] + ref
+    # strictly closer to its own pose than to the neighbours
+    assert np.all(np.abs(ext[1:-1] - doc.pose_t[1:-1, None]) < np.abs(ext[1:-1] - doc.pose_t[:-2, None]))
+    assert np.all(np.abs(ext[1:-1] - doc.pose_t[1:-1, None]) < np.abs(ext[1:-1] - doc.pose_t[2:, None]))
+    # staggered: a good share of the moving variables are refined
+    moving = doc.signals["weights"] > 0
+    assert np.mean(ref[1:-1][:, moving] != 0) > 0.3
+
+
+# --- contacts -------------------------------------------------------------------------
+
+
+def _reference_intervals(pos: np.ndarray, height: float, rate: float, first: int) -> list[tuple[int, int]]:
+    """Independent contacts: speed (central differences, Gaussian-smoothed
+    with σ = 0.02 s) below half a figure height per second for at least
+    0.1 s (frames before ``first`` are ignored: a T-pose)."""
+    T = len(pos)
+    speed = np.full(T, np.inf)
+    v = np.linalg.norm(np.gradient(pos[first:], axis=0), axis=-1) * rate / height
+    speed[first:] = gaussian_filter1d(v, 0.02 * rate, mode="nearest")
+    low = speed < 0.5  # NaN (a C3D gap) is not low
+    step = np.diff(np.concatenate([[0], low.astype(int), [0]]))
+    starts, ends = np.flatnonzero(step == 1), np.flatnonzero(step == -1) - 1
+    # a central difference spans two frame steps: n slow frames in a row mean
+    # the point stayed slow from frame a-1 to b+1, over (n + 1) frame steps
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True) if (b - a + 2) / rate >= 0.1 - 1e-9]
+
+
+def _boundaries(intervals, T: int, first: int) -> list[tuple[str, int]]:
+    """Starts and ends, leaving out the clip's ends (nothing changes there)."""
+    out = []
+    for a, b in intervals:
+        if a > first:
+            out.append(("start", a))
+        if b < T - 1:
+            out.append(("end", b))
+    return out
+
+
+def _matched(a, b, tol: int) -> int:
+    return sum(any(k == k2 and abs(f - f2) <= tol for k2, f2 in b) for k, f in a)
+
+
+def contact_scores(name: str) -> tuple[float, float, int, int]:
+    """Recall and precision of the detected contact starts and ends against
+    the reference, within ±0.1 s, per joint and kind."""
+    doc = _extracted(name)
+    motion = _motion(name)
+    rate = _rate(doc)
+    first = 1 if name in TPOSE else 0
+    joints = tuple(doc.parameters["contact_joints"])
+    if isinstance(motion, BvhMotion):
+        wp = motion.world()[1]
+        pos = wp[:, [motion.skeleton.index(j) for j in joints]]
+    else:
+        pos = motion.points[:, [motion.labels.index(j) for j in joints]]
+    height = motion.figure_height()
+    tol = int(round(0.1 * rate))
+    n_ref = n_det = hit_ref = hit_det = 0
+    for n, joint in enumerate(joints):
+        ref = _boundaries(_reference_intervals(pos[:, n], height, rate, first), doc.n_frames, first)
+        mine = [c for c in doc.constraints if c.joint == joint]
+        det_iv = list(zip(_frames([c.start for c in mine], doc), _frames([c.end for c in mine], doc), strict=True))
+        det = _boundaries(det_iv, doc.n_frames, first)
+        n_ref += len(ref)
+        n_det += len(det)
+        hit_ref += _matched(ref, det, tol)
+        hit_det += _matched(det, ref, tol)
+    return hit_ref / max(n_ref, 1), hit_det / max(n_det, 1), n_ref, n_det
+
+
+@pytest.mark.parametrize("name", CONTACT_CLIPS)
+def test_contacts_agree_with_the_reference(name):
+    recall, precision, n_ref, n_det = contact_scores(name)
+    assert n_ref >= 4 and n_det >= 4
+    assert recall >= 0.8, f"recall {recall:.2f}"
+    assert precision >= 0.8, f"precision {precision:.2f}"
+
+
+def test_running_stance_is_found():
+    doc = _extracted("bandai2_run_normal_001.bvh")
+    # the run has no 0.25 s plant, yet every foot joint gets a stance per stride
+    for joint in doc.parameters["contact_joints"]:
+        spans = [c.end - c.start for c in doc.constraints if c.joint == joint]
+        assert len(spans) >= 2
+        assert max(spans) < 0.25
+    assert extract(_motion("bandai2_run_normal_001.bvh"), min_contact=0.25).constraints == ()
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [
+        ("cmu_02_01_walk.bvh", {"LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase"}),
+        ("cmu3dsmax_131_02_start_walk_stop.bvh", {"LeftAnkle", "LeftToe", "RightAnkle", "RightToe"}),
+        ("bandai2_run_normal_001.bvh", {"Foot_L", "Toes_L", "Foot_R", "Toes_R"}),
+        ("games105_idle.bvh", {"lAnkle", "lToeJoint", "rAnkle", "rToeJoint"}),
+        ("ezc3d_BTS_walk_gaps.c3d", {"r heel", "r met", "l heel", "l met"}),
+        ("c3dorg_sample01_Eb015pi_walk.c3d", {"RFT1", "RFT2", "RFT3", "LFT1", "LFT2", "LFT3"}),
+    ],
+)
+def test_default_contact_joints_are_the_feet(name, expected):
+    assert set(C.contact_joints(_motion(name))) == expected
+
+
+def test_contact_joints_by_option():
+    m = _motion("cmu_02_01_walk.bvh")
+    assert C.contact_joints(m, ["LeftHand"]) == ("LeftHand",)
+    with pytest.raises(UsageError, match="Nope"):
+        C.contact_joints(m, ["Nope"])
+    with pytest.raises(UsageError, match="Nope"):
+        C.contact_joints(_motion("ezc3d_BTS_walk_gaps.c3d"), ["Nope"])
+
+
+def test_up_direction_without_assuming_an_axis():
+    rng = np.random.default_rng(5)
+    # a "figure" 1.7 tall, 0.4 wide, walking 3 units along x, standing on z = 0
+    T = 50
+    pts = rng.uniform([0, -0.2, 0], [0.4, 0.2, 1.7], (T, 20, 3)) + np.linspace(0, 3, T)[:, None, None] * [1, 0, 0]
+    np.testing.assert_array_equal(C.up_direction(pts, 1.7), [0, 0, 1])
+    np.testing.assert_array_equal(C.up_direction(-pts[..., [2, 0, 1]], 1.7), [-1, 0, 0])
+
+
+def test_planted_intervals_on_a_synthetic_step():
+    rate = 100
+    t = np.arange(100) / rate
+    x = np.where(t < 0.3, 0.0, np.where(t < 0.5, (t - 0.3) * 5, 1.0))  # rests, moves, rests
+    pos = np.stack([x, 0 * x, 0 * x], axis=1)
+    iv = C.planted_intervals(pos, 0.03, 11)
+    assert len(iv) == 2
+    (a0, b0), (a1, b1) = iv
+    assert a0 == 0 and b1 == 99
+    assert b0 == 30 and a1 == 50
+    pos[80:85] = np.nan  # a gap ends a contact
+    assert C.planted_intervals(pos, 0.03, 11)[1:] == [(a1, 79), (85, 99)]
+
+
+# --- poses --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", [n for n in BVH_FILES + C3D_FILES if "idle" not in n and "bow" not in n])
+def test_poses_sit_on_contact_changes(name):
+    doc = _extracted(name)
+    T = doc.n_frames
+    changes = []
+    for c in doc.constraints:
+        s, e = _frames([c.start, c.end], doc)
+        if s > (1 if name in TPOSE else 0):
+            changes.append(s)
+        if e < T - 1:
+            changes.append(e)
+    if not changes:
+        pytest.skip("no contact changes")
+    pose_f = _frames(doc.pose_t, doc)
+    near = [np.min(np.abs(pose_f - f)) <= 2 for f in changes]
+    assert np.mean(near) >= 0.9
+
+
+def test_contact_poses_cover_every_change():
+    b = np.array([3, 4, 10, 11, 12, 13, 14, 30])
+    poses = contact_poses(b, 2)
+    assert all(np.min(np.abs(poses - x)) <= 2 for x in b)
+    assert len(poses) < len(b)
+
+
+def test_refinement_frames_take_the_nearest_peak_closer_to_its_pose():
+    p = np.zeros((50, 2))
+    p[[8, 14], 0] = 1.0
+    p[30, 1] = 1.0
+    poses = np.array([0, 10, 20, 49])
+    r = refinement_frames(p, poses, 5)
+    np.testing.assert_array_equal(r, [[0, 0], [-2, 0], [0, 0], [0, 0]])
+    # a wider window: 30 is closer to 20 than to 49; 14 is closer to 10 than to 20
+    r = refinement_frames(p, poses, 12)
+    np.testing.assert_array_equal(r, [[0, 0], [-2, 0], [0, 10], [0, 0]])
+
+
+def _poses_per_second(doc) -> float:
+    return doc.n_poses / doc.duration
+
+
+def test_idle_is_sparse_and_walks_keep_their_contact_poses():
+    idle = _poses_per_second(_extracted("games105_idle.bvh"))
+    for walk in ("cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh"):
+        assert idle <= 0.5 * _poses_per_second(_extracted(walk))
+    # without the gate the idle clip is as busy as a walk: the gate is what makes it sparse
+    ungated = extract(_motion("games105_idle.bvh"), significance=0.0)
+    assert _poses_per_second(ungated) > 2 * idle
+
+
+def test_30_and_120_hz_give_the_same_poses():
+    m = _motion("cmu_02_01_walk.bvh")
+    m30 = replace(m, channels=m.channels[::4], frame_time=m.frame_time * 4)
+    assert m30.rate == 30.0
+    d120, d30 = _extracted("cmu_02_01_walk.bvh"), extract(m30)
+    # the same contacts, to within a 30 Hz frame or two
+    assert len(d30.constraints) == len(d120.constraints)
+    # pose probability: the same curve
+    P120 = d120.signals["P"][::4]
+    assert np.corrcoef(P120, d30.signals["P"])[0, 1] > 0.85
+    # most 30 Hz poses have a 120 Hz pose within two 30 Hz frames
+    d = np.array([np.min(np.abs(d120.pose_t - t)) for t in d30.pose_t])
+    assert np.mean(d <= 2 / 30 + 1e-6) >= 0.8
+    assert 0.6 <= d30.n_poses / d120.n_poses <= 1.4
+
+
+def test_tpose_frame_does_not_flood_the_signals():
+    m = _motion("cmu_01_01_forward_jumps.bvh")
+    cut = replace(m, channels=m.channels[1:])
+    full, rest = S.local_evidence(m), S.local_evidence(cut)
+    assert full.breaks[0] and not full.breaks[1:].any()
+    assert not rest.breaks.any()
+    # the evidence after the jump is what the clip without the T-pose gives
+    np.testing.assert_allclose(full.p[1:], rest.p, atol=1e-6)
+    np.testing.assert_allclose(full.weights, rest.weights, rtol=1e-3)
+    P_full, P_rest = S.pose_probability(full), S.pose_probability(rest)
+    half = int(np.ceil(0.075 * 120))  # the tent filter reaches frame 0 only from the first frames
+    np.testing.assert_allclose(P_full[1 + half :], P_rest[half:], atol=1e-9)
+    assert np.abs(P_full[1 : 1 + half] - P_rest[:half]).max() < 0.05
+
+
+# --- signal operators ----------------------------------------------------------------------
+
+
+def test_scaled_curvature_is_the_sine_of_half_the_turn():
+    turn = np.radians(10.0)
+    a = np.arange(40) * turn
+    circle = np.stack([np.cos(a), np.sin(a), 0 * a], axis=1)[:, None, :]
+    k = S.scaled_curvature(circle)[:, 0]
+    np.testing.assert_allclose(k[1:-1], np.sin(turn / 2), rtol=1e-9)
+    assert k[0] == 0 and k[-1] == 0
+    k2 = S.scaled_curvature(circle, span=2)[:, 0]
+    np.testing.assert_allclose(k2[2:-2], np.sin(turn), rtol=1e-9)
+    line = np.stack([a, 2 * a, 0 * a], axis=1)[:, None, :]
+    assert np.abs(S.scaled_curvature(line)).max() < 1e-7
+    still = np.zeros((10, 1, 3))
+    assert np.all(S.scaled_curvature(still) == 0)
+    rng = np.random.default_rng(1)
+    noise = rng.normal(size=(500, 3, 3))
+    k = S.scaled_curvature(noise)
+    assert k.min() >= 0 and k.max() <= 1
+
+
+def test_smoothing_is_a_duration():
+    n30, r30 = S.smoothing_iterations(0.05, 30)
+    n120, r120 = S.smoothing_iterations(0.05, 120)
+    # a diffusion: sixteen times the iterations at four times the rate
+    # (each full iteration adds a variance of 1/2 frame², the partial one 2 r)
+    assert abs((n120 / 2 + 2 * r120) / (n30 / 2 + 2 * r30) - 16) < 1e-9
+    assert n120 > 10 * n30
+    # the same Gaussian width in seconds at both rates
+    for rate in (30, 120, 250):
+        x = np.zeros(2001)
+        x[1000] = 1.0
+        y = S.laplacian_smooth(x, 0.05, rate)
+        t = (np.arange(2001) - 1000) / rate
+        assert abs(np.sqrt(np.sum(y * t**2)) - 0.05) < 1e-6
+        assert abs(y.sum() - 1) < 1e-12
+    # nothing crosses a break
+    x = np.r_[np.ones(10), np.zeros(10)]
+    breaks = np.zeros(19, dtype=bool)
+    breaks[9] = True
+    np.testing.assert_array_equal(S.laplacian_smooth(x, 0.1, 120, breaks), x)
+
+
+def test_tent_filter_and_pulses_are_rate_independent():
+    x = np.ones(50)
+    np.testing.assert_allclose(S.tent_filter(x, 0.15, 120), 1.0)
+    for rate in (30, 60, 120, 250):
+        pulse = S.contact_pulses([rate], 2 * rate, rate, 0.05)
+        assert abs(pulse.sum() / rate - 0.05) <= 1.0 / rate + 1e-9
+        assert pulse[rate] == 1.0
+
+
+def test_local_maxima_plateaus_and_zeros():
+    x = np.array([0, 1, 1, 1, 0, 0, 0, 2, 0, 0.0])
+    np.testing.assert_array_equal(S.local_maxima(x), [2, 7])
+    assert len(S.local_maxima(np.zeros(10))) == 0
+
+
+# --- the command ----------------------------------------------------------------------------
+
+
+def test_cli_extract_writes_a_document(tmp_path):
+    from staggered_cli.cli.main import cli
+
+    out = tmp_path / "run.json"
+    src = str(mocap("bandai2_run_normal_001.bvh"))
+    res = CliRunner().invoke(cli, ["extract", src, "-o", str(out), "--min-contact", "0.1"])
+    assert res.exit_code == 0, res.output
+    info = CliRunner().invoke(cli, ["info", "--json", str(out)])
+    assert info.exit_code == 0, info.output
+    summary = json.loads(info.stdout)
+    doc = _extracted("bandai2_run_normal_001.bvh")
+    assert [p["time"] for p in summary["poses"]] == pytest.approx(list(doc.pose_t))
+    assert len(summary["constraints"]) == len(doc.constraints)
+    # refuse to clobber; refuse a document as input; unknown joint; bad number
+    assert CliRunner().invoke(cli, ["extract", src, "-o", str(out)]).exit_code == 2
+    assert CliRunner().invoke(cli, ["extract", str(out), "-o", str(tmp_path / "x.stag")]).exit_code == 2
+    res = CliRunner().invoke(cli, ["extract", src, "--contact-joints", "Nope", "-o", str(tmp_path / "y.stag")])
+    assert res.exit_code == 2 and "Nope" in res.stderr
+    res = CliRunner().invoke(cli, ["extract", src, "--filter-width", "nan", "-o", str(tmp_path / "z.stag")])
+    assert res.exit_code == 2
+    assert not (tmp_path / "x.stag").exists() and not (tmp_path / "y.stag").exists()
+
+
+def test_cli_defaults_are_the_library_defaults():
+    from staggered_cli.cli.extract import extract as command
+    from staggered_cli.ops import extract as ops
+
+    defaults = {p.name: p.default for p in command.params}
+    assert defaults["filter_width"] == S.DEFAULT_FILTER_WIDTH
+    assert defaults["refine_window"] == ops.DEFAULT_REFINE_WINDOW
+    assert defaults["min_contact"] == C.DEFAULT_MIN_CONTACT
+    assert defaults["contact_tolerance"] == C.DEFAULT_TOLERANCE
+    assert defaults["significance"] == ops.DEFAULT_SIGNIFICANCE
