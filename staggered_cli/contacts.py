@@ -32,6 +32,11 @@ Detection
     running stance lasts 0.1-0.2 s (bandai2_run has no 0.25 s plant at all),
     and a foot that moves less than 3 % of the figure in 0.1 s is resting.
 
+    A planted point must also be near the floor: within
+    :data:`GROUND_BAND` (8 %) of the figure height of its own lowest level
+    (its 5th-percentile height over the clip), so that the instant a lifted
+    foot turns around at the top of a step is not taken for a contact.
+
     C3D gaps (NaN) end a constraint: a missing marker is not known to rest.
 """
 
@@ -54,6 +59,10 @@ DEFAULT_TOLERANCE = 0.03
 #: Joints or markers whose median height is within this fraction of the
 #: figure height of the lowest one's are "lowest end effectors".
 LOWEST_SHARE = 0.1
+#: A planted effector is within this fraction of the figure height of its own
+#: lowest level (5th percentile of its height over the clip): the apex of a
+#: lifted foot, slow for an instant, is not a contact.
+GROUND_BAND = 0.08
 
 _FOOT_NAME = re.compile(r"foot|toe|ankle|heel", re.IGNORECASE)
 
@@ -235,6 +244,15 @@ def detect_contacts(
     if not names:
         return ()
     names, pos, height = effector_positions(motion, names)
+    all_pos = effector_positions(motion)[1]
+    if isinstance(motion, BvhMotion):
+        all_pos = all_pos[:, body_joints(motion.skeleton)]
+    up = up_direction(all_pos, height)
+    with np.errstate(invalid="ignore"):
+        h = pos @ up  # (T, n)
+        floor = np.array([np.percentile(c[np.isfinite(c)], 5) if np.isfinite(c).any() else np.nan for c in h.T])
+        near_floor = h <= floor[None, :] + GROUND_BAND * height
+    pos = np.where(near_floor[..., None], pos, np.nan)
     ft = float(motion.frame_time)
     # the nominal rate: 0.0333333 s frames must give 3 frame steps for 0.1 s
     min_frames = max(int(np.ceil(min_duration * float(motion.rate) - 1e-6)) + 1, 2)

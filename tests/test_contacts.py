@@ -1,0 +1,28 @@
+"""Contact detection details that the real clips do not pin down."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from staggered_cli.contacts import detect_contacts
+from staggered_cli.io.bvh import read_bvh
+
+from .conftest import SAMPLES
+
+
+def test_a_lifted_foot_turning_around_is_not_a_contact():
+    """The sample marches in place: each foot rests for half of every 1.2 s
+    stride and slows to a stop at the top of its lift, 20 cm up; only the
+    rests are contacts."""
+    m = read_bvh(SAMPLES / "march.bvh")
+    found = detect_contacts(m)
+    assert sorted({c.joint for c in found}) == ["LeftFoot", "RightFoot"]
+    wr, wp = m.world()
+    t = np.arange(m.n_frames) * m.frame_time
+    for c in found:
+        y = wp[(t >= c.start - 1e-9) & (t <= c.end + 1e-9), m.skeleton.index(c.joint), 1]
+        assert y.max() < wp[:, m.skeleton.index(c.joint), 1].min() + 0.05 * m.figure_height()
+    # four rests per foot in 4 s, each about half a stride
+    for foot in ("LeftFoot", "RightFoot"):
+        spans = [c.end - c.start for c in found if c.joint == foot and 0 < c.start and c.end < t[-1]]
+        assert len(spans) >= 2 and all(0.5 < s < 0.9 for s in spans)
