@@ -15,7 +15,7 @@ BENCHES = $(sort $(wildcard bench/*.py))
 DEMO_OUT := out/demo
 PYTEST_ARGS ?=
 
-.PHONY: all demo test lint bench golden install clean
+.PHONY: all demo test lint bench golden install clean samples
 
 all: test
 
@@ -41,27 +41,27 @@ bench: $(STAMP)
 golden: $(STAMP)
 	$(BIN)/python tests/make_golden.py
 
-# Round trip of one sample through the readers and writers (until extract/bake exist).
-ROUNDTRIP = import sys; from staggered_cli.cli.options import load_input; from staggered_cli.io import files; \
-  from staggered_cli.motion import BvhMotion; src, dst = sys.argv[1:]; m = load_input(src); \
-  from staggered_cli.io.bvh import bvh_bytes; from staggered_cli.io.c3d import c3d_bytes; \
-  files.write_atomic(dst, (bvh_bytes if isinstance(m, BvhMotion) else c3d_bytes)(m), force=True)
-
+# The main job on the bundled sample: extract staggered poses, look at them,
+# cull, loosen the arm timing with succession, exaggerate a pose, bake.
+S := $(BIN)/staggered
 demo: $(STAMP)
 	@if [ -z "$(SAMPLES)" ]; then echo "no samples in data/samples/" >&2; exit 1; fi
 	@mkdir -p $(DEMO_OUT)
-	@set -e; for f in $(SAMPLES); do \
-	  out=$(DEMO_OUT)/$$(basename $$f); \
-	  echo "== staggered info $$f"; \
-	  $(BIN)/staggered info $$f; \
-	  echo "== round trip $$f -> $$out"; \
-	  $(BIN)/python -c '$(ROUNDTRIP)' $$f $$out; \
-	  $(BIN)/staggered info --json $$f > $$out.info.json; \
-	  $(BIN)/staggered info --json $$out > $$out.roundtrip.info.json; \
-	  if cmp -s $$f $$out; then echo "   byte-identical"; \
-	  elif diff -u $$out.info.json $$out.roundtrip.info.json; then echo "   same info (bytes differ)"; \
-	  else echo "   round trip changed $$f" >&2; exit 1; fi; \
-	done
+	$(S) extract data/samples/march.bvh -o $(DEMO_OUT)/march.stag --force
+	$(S) info $(DEMO_OUT)/march.stag
+	$(S) cull $(DEMO_OUT)/march.stag --keep 50% -o - \
+	  | $(S) succession - --joint LeftArm --offset 0.03 --power 1.5 --clamp -o - \
+	  | $(S) succession - --joint RightArm --offset 0.03 --power 1.5 --clamp -o $(DEMO_OUT)/march_loose.stag --force
+	$(S) bake $(DEMO_OUT)/march_loose.stag -o $(DEMO_OUT)/march_loose.bvh --force
+	$(S) edit-pose $(DEMO_OUT)/march.stag --pose 3 --exaggerate 1.5 --relative-to average -o - \
+	  | $(S) bake - -o $(DEMO_OUT)/march_exaggerated.bvh --force
+	$(S) extract data/samples/march.c3d -o - | $(S) bake - -o $(DEMO_OUT)/march.c3d --force
+	$(S) bake $(DEMO_OUT)/march.stag -o $(DEMO_OUT)/march_roundtrip.bvh --force
+	@cmp -s data/samples/march.bvh $(DEMO_OUT)/march_roundtrip.bvh && echo "round trip: $(DEMO_OUT)/march_roundtrip.bvh is byte-identical to the sample"
+	@echo "wrote $(DEMO_OUT)/: march.stag, march_loose.bvh, march_exaggerated.bvh, march.c3d"
+
+samples: $(STAMP)
+	$(BIN)/python data/samples/make_samples.py
 
 clean:
 	rm -rf out build *.egg-info .pytest_cache .ruff_cache

@@ -24,6 +24,7 @@ from ..motion import (
 from ..skeleton import forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height
+_SAME_VALUE = 1e-9  # channel units (degrees, file units)
 
 
 def bake(
@@ -50,7 +51,12 @@ def bake(
         rot, tr = local_pose(doc, t, layers)
         if ik and layers == "all" and doc.constraints:
             rot = _contact_layer(doc, rot, tr, t, ik_blend, same_rate)
-        channels = channels_from_local(src.skeleton, rot, tr, reference_channels(doc, t))
+        ref = reference_channels(doc, t)
+        channels = channels_from_local(src.skeleton, rot, tr, ref)
+        if same_rate:
+            # where the motion is the source's to rounding noise, write the
+            # source's own numbers (its -0 and its last digit included)
+            channels = np.where(np.abs(channels - ref) < _SAME_VALUE, ref, channels)
         text = src.frame_time_text if same_rate else _frame_time_text(frame_time)
         return BvhMotion(src.skeleton, channels, frame_time, text, src.number_format)
     src = doc.source
@@ -79,8 +85,6 @@ def _disturbed(
 def _contact_layer(
     doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool
 ) -> np.ndarray:
-    from ..ik import ik_layer
-
     src = doc.source
     sk = src.skeleton
     _, wp = forward_kinematics(sk, rot, tr)
@@ -99,6 +103,8 @@ def _contact_layer(
             todo.append(c)
     if not todo:
         return rot
+    from ..ik import ik_layer
+
     return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend)
 
 
