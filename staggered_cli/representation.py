@@ -150,7 +150,11 @@ def sample_dense(kind: str, frame_t: np.ndarray, dense: np.ndarray, t: np.ndarra
 
 
 def knots_from_poses(
-    pose_t: np.ndarray, refine: np.ndarray, value: np.ndarray, edit_value: np.ndarray
+    pose_t: np.ndarray,
+    refine: np.ndarray,
+    value: np.ndarray,
+    edit_value: np.ndarray,
+    names: tuple[str, ...] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """CSR knot arrays from pose-level arrays.
 
@@ -166,6 +170,7 @@ def knots_from_poses(
     knot_ptr, knot_t, knot_v, knot_pose, knot_editing
     """
     K, V = refine.shape
+    names = names or tuple(f"variable {i}" for i in range(V))
     ptr = [0]
     ts, vs, ps, es = [], [], [], []
     for i in range(V):
@@ -176,6 +181,11 @@ def knots_from_poses(
         p = np.concatenate([np.arange(K), k_ed])
         e = np.concatenate([np.zeros(K, dtype=bool), np.ones(len(k_ed), dtype=bool)])
         order = np.argsort(t, kind="stable")
+        if np.any(np.diff(p[order]) < 0):
+            from .errors import KnotOrderError
+
+            k = int(p[order][np.flatnonzero(np.diff(p[order]) < 0)[0]])
+            raise KnotOrderError(f"the knots of {names[i]!r} around pose {k} would cross a neighbouring pose's knots")
         ts.append(t[order])
         vs.append(v[order])
         ps.append(p[order])
@@ -213,7 +223,7 @@ def build_track(
     extreme_t = pose_t[:, None] + refine
     value = sample_dense(kind, frame_t, dense, extreme_t)
     edit_value = sample_dense(kind, frame_t, dense, pose_t)
-    knots = knots_from_poses(pose_t, refine, value, edit_value)
+    knots = knots_from_poses(pose_t, refine, value, edit_value, names)
     check_knot_order(knots[0], knots[1], names)
     samples_t = [frame_t] * V
     samples_v = [dense[:, i] for i in range(V)]

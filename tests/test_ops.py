@@ -23,7 +23,7 @@ from .conftest import mocap
 def walk():
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
     rng = np.random.default_rng(11)
-    pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.2)
+    pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.1, 0.2)
     doc = D.from_motion(m, pose_t)
     ref = np.round(rng.uniform(-0.05, 0.05, (doc.n_poses, len(doc.variable_names))) / m.frame_time) * m.frame_time
     return D.from_motion(m, doc.pose_t, ref)

@@ -34,7 +34,7 @@ def bvh(request):
 @pytest.mark.parametrize("refined", [False, True])
 def test_bvh_round_trip(bvh, refined):
     rng = np.random.default_rng(7)
-    pose_t = np.arange(0.0, (bvh.n_frames - 1) * bvh.frame_time, 0.25)
+    pose_t = np.arange(0.0, (bvh.n_frames - 1) * bvh.frame_time - 0.2, 0.25)
     doc = D.from_motion(bvh, pose_t)
     if refined:
         doc = D.from_motion(bvh, doc.pose_t, _random_refinements(doc, rng))
@@ -52,7 +52,7 @@ def test_c3d_round_trip(name):
 
     m = read_c3d(mocap(name))
     rng = np.random.default_rng(3)
-    pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.25)
+    pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.2, 0.25)
     doc = D.from_motion(m, pose_t)
     doc = D.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
     pts = D.marker_points(doc, doc.frame_times)

@@ -73,74 +73,70 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
 
 
 def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> Track:
+    """New refinements ``r + delta`` for one track (see :func:`change_refinements`).
+
+    The motion is first warped in time, per variable, by the piecewise-linear
+    map that takes each pose's old extreme knot time to its new one (the
+    first and last poses stay put); every other knot, editing knots included,
+    moves with the warp, so knot order is kept by construction and the detail
+    near an extreme moves with it.  Then the editing knots return to ``t_k``
+    with the value the warped motion has there (paper Figure 6c) and the
+    displacement maps are measured again from the warped motion.
+    """
     K = doc.n_poses
-    ft = doc.frame_time
-    var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
-    shift = delta[tr.knot_pose, var]  # per knot: both knots of a (pose, variable) move together
     ext_t, value, _ = pose_arrays(tr, K)
     refine = ext_t - doc.pose_t[:, None]
+    new_refine = refine + delta
     if clamp:
-        shift = _clamped_shift(tr, refine, shift, doc.pose_t, var, ft)
-    moved = tr.knot_t + shift
-    try:
-        warped = with_knot_times(tr, moved)
-    except KnotOrderError as exc:
-        raise KnotOrderError(
-            f"{exc}: the timing change is too large for the neighbouring knots (use --clamp to stop short)"
-        ) from None
-    new_refine = refine + _per_pose(tr, shift, K)
+        new_refine = _clamped(doc.pose_t, new_refine, _MARGIN_FRAMES * doc.frame_time)
     new_refine[np.abs(new_refine) < 1e-12] = 0.0
-    # the editing knots go back to t_k with the value the warped motion has there
-    Kk, V = new_refine.shape
+    _check_final_order(doc, tr, new_refine)
+    old_ext = doc.pose_t[:, None] + refine
+    new_ext = doc.pose_t[:, None] + new_refine
+    warped_t = tr.knot_t.copy()
+    for i in range(tr.n_vars):
+        sl = tr.knots(i)
+        warped_t[sl] = np.interp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
+    warped = with_knot_times(tr, warped_t)
     kk, ii = np.nonzero(new_refine != 0.0)
     edit = value.copy()
     if len(kk):
         edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk])
-    knots = knots_from_poses(doc.pose_t, new_refine, value, edit)
     _warn_far_knots(doc, tr, new_refine)
-    try:
-        return restructure(warped, *knots)
-    except KnotOrderError as exc:
+    return restructure(warped, *knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names))
+
+
+def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
+    """Refuse refinements whose knots would cross (SPEC invariant 3)."""
+    t = doc.pose_t[:, None]
+    lo = np.minimum(t, t + refine)  # (K, V): first knot of each pose
+    hi = np.maximum(t, t + refine)
+    bad = lo[1:] <= hi[:-1]
+    if np.any(bad):
+        k, i = (int(x[0]) for x in np.nonzero(bad))
         raise KnotOrderError(
-            f"{exc}: the new refinement would cross the pose's own editing knot or a neighbour (use --clamp)"
-        ) from None
+            f"the knots of {tr.names[i]!r} would cross between poses {k} and {k + 1} "
+            f"({doc.pose_t[k]:.4f} s and {doc.pose_t[k + 1]:.4f} s): the timing change is too large "
+            "(use --clamp to stop short)"
+        )
 
 
-def _per_pose(tr: Track, shift: np.ndarray, K: int) -> np.ndarray:
-    out = np.zeros((K, tr.n_vars))
-    var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
-    ext = ~tr.knot_editing
-    out[tr.knot_pose[ext], var[ext]] = shift[ext]
-    return out
+def _clamped(pose_t: np.ndarray, wanted: np.ndarray, margin: float) -> np.ndarray:
+    """Refinements as close to ``wanted`` as the knot order allows.
 
-
-def _clamped_shift(
-    tr: Track, refine: np.ndarray, shift: np.ndarray, pose_t: np.ndarray, var: np.ndarray, ft: float
-) -> np.ndarray:
-    """Shrink each (pose, variable) shift so its knots stay inside the gap
-    between the neighbouring poses' knots, and so the extreme knot does not
-    cross ``t_k`` (where the editing knot returns)."""
-    margin = _MARGIN_FRAMES * ft
-    out = shift.copy()
-    kt = tr.knot_t
-    for i in range(tr.n_vars):
-        sl = tr.knots(i)
-        t = kt[sl]
-        p = tr.knot_pose[sl]
-        s = out[sl]
-        poses = np.unique(p)
-        for k in poses:
-            own = np.flatnonzero(p == k)
-            lo_t = t[own[0] - 1] + margin if own[0] > 0 else -np.inf
-            hi_t = t[own[-1] + 1] - margin if own[-1] + 1 < len(t) else np.inf
-            sk = s[own[0]]
-            sk = min(max(sk, lo_t - t[own[0]]), hi_t - t[own[-1]])
-            # the extreme knot must stay on its side of t_k or land on it, never swap
-            r = refine[k, i]
-            if r != 0.0 and np.sign(r + sk) == -np.sign(r):
-                sk = -r
-            s[own] = sk
-        out[sl] = s
+    Left to right, each pose's knots stay ``margin`` seconds clear of the
+    previous pose's (as already clamped) and of the next pose's (as wanted,
+    but never past its editing knot at ``t_{k+1}``).  An extreme knot may
+    pass its own pose time: the editing knot simply ends on its other side.
+    """
+    out = wanted.copy()
+    K = len(pose_t)
+    for k in range(1, K - 1):
+        prev_hi = np.maximum(pose_t[k - 1], pose_t[k - 1] + out[k - 1])
+        next_lo = np.minimum(pose_t[k + 1], pose_t[k + 1] + out[k + 1])
+        lo = prev_hi + margin - pose_t[k]
+        hi = next_lo - margin - pose_t[k]
+        out[k] = np.clip(out[k], lo, hi)
     return out
 
 
