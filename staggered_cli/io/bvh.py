@@ -10,6 +10,7 @@ source's numbers.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 
@@ -127,6 +128,9 @@ def _parse_hierarchy(header: str) -> Skeleton:
         nonlocal pos
         parts = []
         while pos < len(toks) and toks[pos][1] == ln and toks[pos][0] != "{":
+            if toks[pos][0] == "}":
+                # a '}' in a name would be written back as an unbalanced brace
+                raise DataError(f"line {ln}: unexpected '}}' in a joint name")
             parts.append(toks[pos][0])
             pos += 1
         if not parts:
@@ -246,25 +250,40 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
         text = body.decode("ascii")
     except UnicodeDecodeError as exc:
         raise DataError(f"MOTION data is not text (byte {exc.start} of the data)") from None
-    tokens = text.split()
-    expected = n_frames * n_channels
-    if len(tokens) != expected:
+    if not text.strip():
         _explain_count(text, n_frames, n_channels, first_line + 4)
-    try:
-        values = np.array(tokens, dtype=float)
-    except ValueError:
-        _explain_values(text, first_line + 4)
-        raise
+    values = _fast_values(text, n_frames, n_channels)
+    if values is None:  # ragged lines or odd tokens: the slow path says exactly where
+        tokens = text.split()
+        if len(tokens) != n_frames * n_channels:
+            _explain_count(text, n_frames, n_channels, first_line + 4)
+        try:
+            values = np.array(tokens, dtype=float).reshape(n_frames, n_channels)
+        except ValueError:
+            _explain_values(text, first_line + 4)
+            raise
     if not np.all(np.isfinite(values)):
-        bad = int(np.flatnonzero(~np.isfinite(values))[0])
-        raise DataError(f"frame {bad // n_channels}: value {tokens[bad]!r} is not a finite number")
-    fmt = _number_format(tokens, values)
+        bad = int(np.flatnonzero(~np.isfinite(values.ravel()))[0])
+        raise DataError(f"frame {bad // n_channels}: a value is not a finite number ({values.ravel()[bad]})")
+    head = text[:200_000]
+    sample = head.split() if len(text) <= len(head) else head.rsplit(None, 1)[0].split()
+    fmt = _number_format(sample, values.ravel())
     if fmt.endswith("f") and not body.rstrip(b" \t").endswith((b"\n", b"\r")):
         # no final newline and a last number shorter than all the others: cut off
-        last, decimals = tokens[-1], int(fmt[2:-1])
+        last, decimals = text.rsplit(None, 1)[-1], int(fmt[2:-1])
         if decimals > 0 and "." not in last or "." in last and len(last) - last.index(".") - 1 < decimals:
             raise DataError(f"frame {n_frames - 1}: the last line is cut off after {last[:20]!r} (truncated?)")
-    return values.reshape(n_frames, n_channels), frame_time, ft_text, fmt
+    return values, frame_time, ft_text, fmt
+
+
+def _fast_values(text: str, n_frames: int, n_channels: int) -> np.ndarray | None:
+    """The MOTION block as (frames, channels) with numpy's C parser, or None
+    when it does not parse as one frame per line (then the slow path explains)."""
+    try:
+        values = np.loadtxt(io.StringIO(text), dtype=float, ndmin=2, comments=None)
+    except ValueError:
+        return None
+    return values if values.shape == (n_frames, n_channels) else None
 
 
 def _explain_count(text: str, n_frames: int, n_channels: int, first_line: int) -> None:
@@ -288,6 +307,8 @@ def _explain_values(text: str, first_line: int) -> None:
     for i, ln in enumerate(text.splitlines()):
         for tok in ln.split():
             try:
+                if "_" in tok:
+                    raise ValueError
                 float(tok)
             except ValueError:
                 raise DataError(f"line {first_line + i}: {tok[:40]!r} is not a number") from None
