@@ -12,7 +12,7 @@ from staggered_cli.ops import cull, timing
 from staggered_cli.ops import edit_pose as E
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.extract import extract
-from staggered_cli.skeleton import forward_kinematics
+from staggered_cli.skeleton import body_joints, forward_kinematics
 
 from .conftest import mocap
 from .test_ops import _lag
@@ -91,3 +91,35 @@ def test_succession_on_a_culled_walk_moves_extrema_by_s_d_power():
             hits += abs(_lag(a[:, j], b[:, j], f, int(expect / ft) + 6) * ft - expect) <= ft
     assert total >= 10
     assert hits / total >= 0.8, (hits, total)
+
+
+@pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "bandai2_run_normal_001.bvh"])
+def test_contact_layer_keeps_planted_feet_after_moving_the_root(name):
+    """edit-pose --translate <root>=5 % of the height on poses inside contacts:
+    without the layer the foot slides by about the edit; with it the foot
+    follows its captured path (slide measured against the source, after
+    removing the constant offset the edit gives the whole plant)."""
+    m = read_bvh(mocap(name))
+    doc = extract(m)
+    sk = m.skeleton
+    size = m.figure_height()
+    root = sk.names[body_joints(sk)[0]]  # the moving root (Hips, not Bandai's static joint_Root)
+    t = np.arange(m.n_frames) * m.frame_time
+    source = _positions(m)
+    slides = {False: [], True: []}
+    for c in doc.constraints:
+        k = int(np.argmin(np.abs(doc.pose_t - 0.5 * (c.start + c.end))))
+        if not c.start < doc.pose_t[k] < c.end or k in (0, doc.n_poses - 1):
+            continue
+        edited = E.edit_pose(doc, k, translate={root: (0.05 * size, 0.0, 0.0)})
+        inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
+        j = sk.index(c.joint)
+        for ik in (False, True):
+            d = _positions(bake(edited, ik=ik))[inside, j] - source[inside, j]
+            slides[ik].append(np.linalg.norm(d - d.mean(axis=0), axis=1).max() / size)
+        if len(slides[True]) >= 4:
+            break
+    assert len(slides[True]) >= 3
+    assert np.mean(slides[False]) > 0.01  # about the edit
+    assert np.mean(slides[True]) < 0.0025
+    assert np.max(slides[True]) < 0.005

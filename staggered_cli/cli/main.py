@@ -40,6 +40,7 @@ COMMANDS: dict[str, str] = {
     "info": "staggered_cli.cli.info:info",
     "extract": "staggered_cli.cli.extract:extract",
     "cull": "staggered_cli.cli.cull:cull",
+    "constraints": "staggered_cli.cli.constraints:constraints",
     "edit-pose": "staggered_cli.cli.edit_pose:edit_pose",
     "succession": "staggered_cli.cli.succession:succession",
     "randomize": "staggered_cli.cli.randomize:randomize",

@@ -4,8 +4,11 @@ contact layer, in the source's skeleton and channel layout (or markers).
 The contact (IK) layer repairs what edits disturbed: a constraint whose
 effector is where the source had it (to 1e-6 of the figure's size) over the
 constraint and its blend windows gets no layer, so an unedited round trip
-stays lossless and an edit stays local; a disturbed one is pinned to the
-mean position its effector has over the constraint in the baked motion.
+stays lossless and an edit stays local.  During a disturbed constraint the
+effector follows its own captured path, shifted by the mean offset the edit
+gave it over the constraint: the edit adds no sliding, the capture's own
+heel-to-toe roll is kept, and an edit that moves the whole figure moves its
+plants along.
 """
 
 from __future__ import annotations
@@ -71,41 +74,51 @@ def _frame_time_text(ft: float) -> str:
 
 
 def _disturbed(
-    doc: Document, joint_pos: np.ndarray, source_pos: np.ndarray | None, t: np.ndarray, c, blend: float, size: float
+    pos: np.ndarray, source_pos: np.ndarray, t: np.ndarray, c, blend: float, size: float, exact: bool = True
 ) -> bool:
-    if source_pos is None:
+    """Whether the edits moved a constrained point away from the source over
+    the constraint and its blend windows (always, when resampling)."""
+    if not exact:
         return True
     window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
     if not window.any():
         return False
-    d = np.linalg.norm(joint_pos[window] - source_pos[window], axis=-1)
-    return bool(np.nanmax(d) > _UNDISTURBED * size)
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(pos[window] - source_pos[window], axis=-1)
+    return bool(np.nanmax(d) > _UNDISTURBED * size) if np.isfinite(d).any() else False
 
 
 def _contact_layer(
     doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool
 ) -> np.ndarray:
+    """Repair the constraints the edits disturbed (see the module docstring)."""
     src = doc.source
     sk = src.skeleton
     _, wp = forward_kinematics(sk, rot, tr)
-    src_wp = None
-    if same_rate:
-        src_wp = forward_kinematics(
-            sk, local_rotations_from_channels(sk, src.channels), local_translations_from_channels(sk, src.channels)
-        )[1]
+    src_rot = local_rotations_from_channels(sk, src.channels)
+    src_wp = forward_kinematics(sk, src_rot, local_translations_from_channels(sk, src.channels))[1]
+    if not same_rate:  # the source's positions at the output times
+        f = np.clip(t / doc.frame_time, 0, doc.n_frames - 1)
+        lo = np.floor(f).astype(int)
+        hi = np.minimum(lo + 1, doc.n_frames - 1)
+        src_wp = src_wp[lo] + (src_wp[hi] - src_wp[lo]) * (f - lo)[:, None, None]
     size = src.figure_height()
-    todo = []
+    todo, targets = [], []
     for c in doc.constraints:
         if c.joint not in sk.names:
             raise UsageError(f"constraint on unknown joint {c.joint!r}")
         j = sk.names.index(c.joint)
-        if _disturbed(doc, wp[:, j], None if src_wp is None else src_wp[:, j], t, c, blend, size):
-            todo.append(c)
+        if not _disturbed(wp[:, j], src_wp[:, j], t, c, blend, size, exact=same_rate):
+            continue
+        inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
+        offset = (wp[inside, j] - src_wp[inside, j]).mean(axis=0) if inside.any() else np.zeros(3)
+        todo.append(c)
+        targets.append(src_wp[:, j] + offset)
     if not todo:
         return rot
     from ..ik import ik_layer
 
-    return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend)
+    return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=targets)
 
 
 def _smooth_weight(t: np.ndarray, start: float, end: float, blend: float) -> np.ndarray:
@@ -121,24 +134,32 @@ def _smooth_weight(t: np.ndarray, start: float, end: float, blend: float) -> np.
 
 
 def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, same_rate: bool) -> np.ndarray:
-    """C3D: a constrained marker is held at its mean position over the
-    constraint, blended in and out (markers have no chain to solve)."""
+    """C3D: a disturbed constrained marker follows its captured path shifted by
+    the edit's mean offset over the constraint, blended in and out (markers
+    have no chain to solve)."""
     src = doc.source
     size = src.figure_height()
+    ref_all = src.points
+    if not same_rate:
+        f = np.clip(np.rint(t / doc.frame_time).astype(int), 0, doc.n_frames - 1)
+        ref_all = ref_all[f]
     out = pts.copy()
     for c in doc.constraints:
         if c.joint not in src.labels:
             raise UsageError(f"constraint on unknown marker {c.joint!r}")
         m = src.labels.index(c.joint)
-        ref = src.points[:, m] if same_rate else None
-        with np.errstate(invalid="ignore"):
-            if not _disturbed(doc, pts[:, m], ref, t, c, blend, size):
-                continue
+        ref = ref_all[:, m]
+        if not _disturbed(pts[:, m], ref, t, c, blend, size, exact=same_rate):
+            continue
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
-        seen = inside & np.all(np.isfinite(pts[:, m]), axis=1)
+        seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(ref), axis=1)
         if not seen.any():
             continue
-        target = pts[seen, m].mean(axis=0)
+        target = ref + (pts[seen, m] - ref[seen]).mean(axis=0)
         w = _smooth_weight(t, c.start, c.end, blend)[:, None]
-        out[:, m] = np.where(w > 0, pts[:, m] + w * (target - pts[:, m]), out[:, m])
+        # in the blend windows the correction fades from its value at the boundary
+        i0, i1 = np.flatnonzero(seen)[[0, -1]]
+        corr = np.where((t < c.start)[:, None], target[i0] - pts[i0, m], target[i1] - pts[i1, m])
+        corr[inside] = (target - pts[:, m])[inside]
+        out[:, m] = np.where(w > 0, pts[:, m] + w * np.nan_to_num(corr), out[:, m])
     return out

@@ -1,0 +1,176 @@
+"""``staggered constraints``: list, add, remove and re-detect contact constraints.
+
+The paper pairs its heuristic detector with manual cleanup (section 4.1.2,
+Appendix B): every detector makes mistakes.  Without an edit option the
+command lists the document's constraints; with one it writes the changed
+document.  Edits apply in this order: ``--detect`` (replaces the constraints
+on the joints it looks at), ``--remove`` (indices as ``--list`` shows them
+for the document as read), ``--add``.  The result is sorted by start time.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+
+from .common import check_output, finite, name_list, read_document, write_document
+from .options import STDIO, force_option, format_option, input_argument, output_option
+
+
+def parse_span(value: str) -> tuple[str, float, float]:
+    """``'JOINT@START:END'`` (seconds) -> (joint, start, end)."""
+    joint, sep, times = value.rpartition("@")
+    a, colon, b = times.partition(":")
+    if not sep or not joint or not colon:
+        raise click.BadParameter(f"expected JOINT@START:END (seconds), got {value!r}", param_hint="--add")
+    start, end = finite(a, "--add"), finite(b, "--add")
+    if start > end:
+        raise click.BadParameter(f"START must not exceed END in {value!r}", param_hint="--add")
+    return joint, start, end
+
+
+def _check_span(doc, joint: str, start: float, end: float) -> None:
+    """A constraint to add must name a joint (with a chain to solve) or marker,
+    and lie within the clip."""
+    from ..errors import UsageError
+    from ..ik import two_bone_chain
+    from ..motion import BvhMotion
+
+    src = doc.source
+    if isinstance(src, BvhMotion):
+        two_bone_chain(src.skeleton, joint)  # unknown joint or no chain: UsageError
+    elif joint not in src.labels:
+        shown = ", ".join(src.labels[:8]) + (", ..." if len(src.labels) > 8 else "")
+        raise UsageError(f"unknown marker {joint!r} (markers: {shown})")
+    if start < -1e-9 or end > doc.duration + 1e-9:
+        raise UsageError(f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.duration:.4f} s)")
+
+
+def _detect(doc, joints: list[str] | None, min_contact: float | None, tolerance: float | None) -> tuple:
+    """The document's constraints with those on the detected joints replaced by
+    a fresh detection on the source motion; unset options come from the
+    document's extract parameters, then the detector's defaults."""
+    from ..contacts import DEFAULT_MIN_CONTACT, DEFAULT_TOLERANCE, contact_joints, detect_contacts
+
+    params = doc.parameters
+    if joints is None and params.get("contact_joints"):
+        joints = [str(j) for j in params["contact_joints"]]
+    if min_contact is None:
+        min_contact = float(params.get("min_contact", DEFAULT_MIN_CONTACT))
+    if tolerance is None:
+        tolerance = float(params.get("contact_tolerance", DEFAULT_TOLERANCE))
+    names = set(contact_joints(doc.source, joints))
+    found = detect_contacts(doc.source, sorted(names), min_duration=min_contact, tolerance=tolerance)
+    return tuple(c for c in doc.constraints if c.joint not in names) + tuple(found)
+
+
+def _table(constraints) -> str:
+    width = max([len("joint")] + [len(c.joint) for c in constraints])
+    lines = [f"{'#':>3}  {'joint':<{width}}  {'start':>9}  {'end':>9}  {'duration':>9}"]
+    for i, c in enumerate(constraints):
+        lines.append(f"{i:>3}  {c.joint:<{width}}  {c.start:>9.4f}  {c.end:>9.4f}  {c.end - c.start:>9.4f}")
+    if not constraints:
+        lines.append("(no constraints)")
+    return "\n".join(lines)
+
+
+def _json(constraints) -> str:
+    rows = [
+        {"index": i, "joint": c.joint, "start": round(float(c.start), 9), "end": round(float(c.end), 9)}
+        for i, c in enumerate(constraints)
+    ]
+    return json.dumps({"constraints": rows}, sort_keys=True, indent=2)
+
+
+@click.command("constraints")
+@input_argument
+@click.option("--list", "show", is_flag=True, help="List the constraints (the default when nothing is edited).")
+@click.option("--json", "as_json", is_flag=True, help="List them as JSON.")
+@click.option(
+    "--add",
+    "adds",
+    multiple=True,
+    metavar="JOINT@START:END",
+    help="Add a constraint: JOINT is planted from START to END seconds (repeatable).",
+)
+@click.option(
+    "--remove", "removes", multiple=True, type=int, metavar="N", help="Remove constraint N as listed (repeatable)."
+)
+@click.option("--detect", is_flag=True, help="Re-detect contacts on the source motion, replacing those on its joints.")
+@click.option(
+    "--contact-joints",
+    metavar="A,B,...",
+    help="Joints or markers --detect looks at. Default: those extract used (feet and toes).",
+)
+@click.option("--min-contact", type=float, metavar="SECONDS", help="Shortest contact for --detect.")
+@click.option(
+    "--contact-tolerance", type=float, metavar="F", help="How still a planted joint stays, fraction of figure height."
+)
+@output_option
+@force_option
+@format_option
+def constraints(
+    input_path, show, as_json, adds, removes, detect, contact_joints, min_contact, contact_tolerance, output, force, fmt
+):
+    """List or edit the contact constraints of document FILE.
+
+    Times are seconds from the first frame.  Without --add, --remove or
+    --detect the constraints are listed on standard output; with them the
+    changed document is written to -o (standard output by default), and
+    --list/--json also print the new list when -o names a file.
+    """
+    from dataclasses import replace
+
+    from ..document import Constraint
+
+    editing = bool(adds or removes or detect)
+    if not detect and (contact_joints is not None or min_contact is not None or contact_tolerance is not None):
+        raise click.UsageError("--contact-joints, --min-contact and --contact-tolerance go with --detect")
+    if detect and removes:
+        raise click.UsageError("--remove refers to the listed constraints: run it apart from --detect")
+    if editing and (show or as_json) and output == STDIO:
+        raise click.UsageError("the document goes to standard output: give -o FILE to also list the constraints")
+    if not editing and (output != STDIO or force or fmt is not None):
+        raise click.UsageError("nothing to write: give --add, --remove or --detect")
+    for value, what in ((min_contact, "--min-contact"), (contact_tolerance, "--contact-tolerance")):
+        if value is not None and not math.isfinite(value):
+            raise click.BadParameter(f"must be a finite number, got {value}", param_hint=what)
+    spans = [parse_span(a) for a in adds]
+    if editing:
+        check_output(output, force)
+    doc = read_document(input_path)
+
+    if not editing:
+        click.echo(_json(doc.constraints) if as_json else _table(doc.constraints))
+        return
+
+    cons = tuple(doc.constraints)
+    if detect:
+        joints = name_list(contact_joints)
+        if contact_joints is not None and not joints:
+            raise click.BadParameter(
+                "expected comma-separated joint names or marker labels", param_hint="--contact-joints"
+            )
+        cons = _detect(doc, joints, min_contact, contact_tolerance)
+    if removes:
+        n = len(cons)
+        bad = [k for k in removes if not -n <= k < n]
+        if bad:
+            from ..errors import UsageError
+
+            raise UsageError(
+                f"no constraint {bad[0]} (the document has {n}: 0 to {n - 1})"
+                if n
+                else "the document has no constraints"
+            )
+        drop = {k % n for k in removes}
+        cons = tuple(c for i, c in enumerate(cons) if i not in drop)
+    for joint, start, end in spans:
+        _check_span(doc, joint, start, end)
+        cons = cons + (Constraint(joint, start, end),)
+    cons = tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint)))
+    write_document(replace(doc, constraints=cons), output, fmt, force)
+    if show or as_json:
+        click.echo(_json(cons) if as_json else _table(cons))
