@@ -3,6 +3,7 @@
 # make lint   ruff
 # make bench  run every bench/*.py
 # make golden regenerate tests/golden/ on purpose (tests never do)
+# make batch  IN=dir OUT=dir [STEPS='cull --keep 30%|...']: extract -> steps -> bake over a library
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -15,7 +16,7 @@ BENCHES = $(sort $(wildcard bench/*.py))
 DEMO_OUT := out/demo
 PYTEST_ARGS ?=
 
-.PHONY: all demo test lint bench golden install clean samples
+.PHONY: all demo test lint bench golden install clean batch _batch-files samples pictures
 
 all: test
 
@@ -58,10 +59,77 @@ demo: $(STAMP)
 	$(S) extract data/samples/march.c3d -o - | $(S) bake - -o $(DEMO_OUT)/march.c3d --force
 	$(S) bake $(DEMO_OUT)/march.stag -o $(DEMO_OUT)/march_roundtrip.bvh --force
 	@cmp -s data/samples/march.bvh $(DEMO_OUT)/march_roundtrip.bvh && echo "round trip: $(DEMO_OUT)/march_roundtrip.bvh is byte-identical to the sample"
-	@echo "wrote $(DEMO_OUT)/: march.stag, march_loose.bvh, march_exaggerated.bvh, march.c3d"
+	$(S) plot $(DEMO_OUT)/march_loose.stag --kind signals --dpi 72 -o $(DEMO_OUT)/signals.png --force
+	$(S) plot $(DEMO_OUT)/march_loose.stag --kind timing --dpi 72 -o $(DEMO_OUT)/timing.png --force
+	$(S) plot $(DEMO_OUT)/march_loose.stag --kind curves --joints RightArm,RightForeArm,RightHand --dpi 72 -o $(DEMO_OUT)/curves.png --force
+	$(S) preview $(DEMO_OUT)/march_loose.stag --compare data/samples/march.bvh --dpi 72 -o $(DEMO_OUT)/preview.png --force
+	@echo "wrote $(DEMO_OUT)/: march.stag, march_loose.bvh, march_exaggerated.bvh, march.c3d and signals, timing, curves, preview .png"
+
+# The README's pictures, regenerated on purpose (review them before committing).
+pictures: demo
+	mkdir -p docs/pictures
+	cp $(DEMO_OUT)/signals.png $(DEMO_OUT)/timing.png $(DEMO_OUT)/curves.png $(DEMO_OUT)/preview.png docs/pictures/
 
 samples: $(STAMP)
 	$(BIN)/python data/samples/make_samples.py
+
+# ---------------------------------------------------------------------------
+# make -j2 -k batch IN=dir OUT=dir [STEPS='cull --keep 30%|succession --joint LeftShoulder --offset 0.02 --power 2']
+#
+# For every .bvh / .c3d (any case) under IN, at any depth:
+#   staggered extract IN/rel -o - | staggered STEP1 - -o - | ... | staggered bake - -o OUT/rel
+# OUT mirrors IN's tree.  An output is rebuilt only when older than its input
+# (make's rule: after changing STEPS, use -B).  STEPS has the syntax of
+# `staggered batch --steps` and is checked once before any file.  A failing
+# file leaves no output (bake writes atomically; a previous output of it is
+# removed) and its stderr in OUT/rel.err; with -k the others go on, and a
+# summary names each failure with its reason.  Spaces in paths work; names
+# with " $ ` \ : % # do not (make and the shell would read them).
+STAGGERED ?= $(BIN)/staggered
+BATCH_IN = $(patsubst %/,%,$(IN))
+BATCH_OUT = $(patsubst %/,%,$(OUT))
+BATCH_FIND = find . -xtype f \( -iname '*.bvh' -o -iname '*.c3d' \) | LC_ALL=C sort | sed 's|^\./||'
+
+batch: $(STAMP)
+	@if [ -z "$(strip $(IN))" ] || [ -z "$(strip $(OUT))" ]; then \
+	  echo "usage: make [-j N] [-k] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...']" >&2; exit 2; fi
+	@$(STAGGERED) -q batch "$(BATCH_IN)" "$(BATCH_OUT)" --steps "$$STEPS" --dry-run > /dev/null
+	@status=0; $(MAKE) --no-print-directory _batch-files || status=$$?; \
+	total=0; failed=0; \
+	while IFS= read -r rel; do \
+	  total=$$((total + 1)); err="$(BATCH_OUT)/$$rel.err"; \
+	  if [ -f "$$err" ]; then \
+	    failed=$$((failed + 1)); \
+	    reason=$$(grep -v ': WARNING: ' -- "$$err" | grep -m 1 .); \
+	    echo "  FAILED $$rel: $${reason:-exit status $$status}"; \
+	  fi; \
+	done < <(cd "$(BATCH_IN)" && $(BATCH_FIND)); \
+	echo "make batch: $$total files, $$failed failed (outputs in $(BATCH_OUT))"; \
+	exit $$status
+
+ifneq ($(filter _batch-files,$(MAKECMDGOALS)),)
+export STEPS
+# make splits its word lists on spaces: a space in a path travels as \037
+# and becomes an escaped space only in the rules
+BATCH_US := $(shell printf '\037')
+batch_empty :=
+batch_esc = $(subst $(BATCH_US),\$(batch_empty) $(batch_empty),$1)
+BATCH_RELS := $(shell cd "$(BATCH_IN)" && $(BATCH_FIND) | tr ' ' '\037')
+BATCH_STEPS = $(if $(strip $(STEPS)),| $(STAGGERED) $(subst |, - -o - | $(STAGGERED) ,$(STEPS)) - -o - )
+BATCH_PIPE = $(STAGGERED) extract "$<" -o - $(BATCH_STEPS)| $(STAGGERED) bake - -o "$@" --force
+BATCH_RECIPE = set -o pipefail; out="$@"; err="$@.err"; mkdir -p -- "$$(dirname -- "$$out")"; \
+  if { $(BATCH_PIPE); } 2> "$$err"; then \
+    cat -- "$$err" >&2; rm -f -- "$$err"; echo "baked $$out"; \
+  else rm -f -- "$$out"; echo "failed $<" >&2; exit 1; fi
+
+_batch-files: $(foreach r,$(BATCH_RELS),$(call batch_esc,$(BATCH_OUT)/$r))
+
+define batch_rule
+$(call batch_esc,$(BATCH_OUT)/$1): $(call batch_esc,$(BATCH_IN)/$1)
+	@$$(BATCH_RECIPE)
+endef
+$(foreach r,$(BATCH_RELS),$(eval $(call batch_rule,$r)))
+endif
 
 clean:
 	rm -rf out build *.egg-info .pytest_cache .ruff_cache

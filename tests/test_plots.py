@@ -1,0 +1,391 @@
+"""Pictures (plots.py) and the plot / preview commands, on real motion capture
+from ../shared/mocap: every kind renders for every file, pictures of
+different documents differ, GIFs animate, and errors are one line."""
+
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+from staggered_cli import document as D
+from staggered_cli import plots
+from staggered_cli.cli.main import cli
+from staggered_cli.cli.options import load_input
+from staggered_cli.cli.preview import join_at
+from staggered_cli.document import to_parts
+from staggered_cli.errors import UsageError
+from staggered_cli.io.document import document_bytes
+
+from .conftest import BVH_FILES, C3D_FILES, SAMPLES, mocap
+
+ALL_FILES = BVH_FILES + C3D_FILES
+TEST_DPI = 60  # small pictures keep the tests quick
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+MIN_PLOT_BYTES = 20_000  # a 720 x 420 picture with real content; a blank one is ~5 kB
+MIN_PREVIEW_BYTES = 10_000
+
+
+def _extract():
+    try:
+        from staggered_cli.ops.extract import extract
+    except ImportError:  # extraction not there yet: poses every 0.25 s, no signals
+        return None
+    return extract
+
+
+def make_document(name: str) -> D.Document:
+    """The document of a mocap file: extracted, or poses every 0.25 s."""
+    motion = load_input(str(mocap(name)))
+    extract = _extract()
+    if extract is not None:
+        return extract(motion, source_name=name)
+    return D.from_motion(motion, np.arange(0.0, (motion.n_frames - 1) * motion.frame_time, 0.25), source_name=name)
+
+
+@pytest.fixture(scope="module")
+def documents():
+    """Documents by file name, each extracted once for the module."""
+    cache: dict[str, D.Document] = {}
+
+    def get(name: str) -> D.Document:
+        if name not in cache:
+            cache[name] = make_document(name)
+        return cache[name]
+
+    return get
+
+
+def pixels(png: bytes) -> np.ndarray:
+    with Image.open(io.BytesIO(png)) as im:
+        return np.asarray(im.convert("RGB"), dtype=np.int16)
+
+
+def check_png(data: bytes, minimum: int, size: tuple[int, int] | None = None) -> None:
+    assert data[:8] == PNG_SIGNATURE
+    assert len(data) > minimum, len(data)
+    with Image.open(io.BytesIO(data)) as im:
+        im.verify()
+    if size is not None:
+        assert pixels(data).shape[:2] == (size[1], size[0])
+
+
+def differing(a: bytes, b: bytes) -> float:
+    """Fraction of pixels that differ between two pictures (over the part
+    they share when their sizes differ: a preview's height follows the figure)."""
+    pa, pb = pixels(a), pixels(b)
+    h, w = min(pa.shape[0], pb.shape[0]), min(pa.shape[1], pb.shape[1])
+    return float(np.mean(np.any(np.abs(pa[:h, :w] - pb[:h, :w]) > 8, axis=-1)))
+
+
+def write_doc(doc: D.Document, path) -> None:
+    manifest, arrays = to_parts(doc)
+    path.write_bytes(document_bytes(manifest, arrays, "npz"))
+
+
+def run(args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def one_line_error(result, code: int, *needles: str) -> None:
+    assert result.exit_code == code, (result.exit_code, result.stderr)
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("staggered: "), result.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    assert "Traceback" not in result.stderr
+
+
+# ------------------------------------------------------------- every file, every kind
+
+
+@pytest.mark.parametrize("kind", plots.KINDS)
+@pytest.mark.parametrize("name", ALL_FILES)
+def test_every_kind_renders(documents, name, kind):
+    doc = documents(name)
+    data = plots.png_bytes(plots.plot_figure(doc, kind, name=name), TEST_DPI)
+    check_png(data, MIN_PLOT_BYTES, (int(plots.FIGSIZE[0] * TEST_DPI), int(plots.FIGSIZE[1] * TEST_DPI)))
+
+
+@pytest.mark.parametrize("name", ALL_FILES)
+def test_preview_renders(documents, name):
+    doc = documents(name)
+    data = plots.png_bytes(plots.preview_figure(doc, name=name), TEST_DPI)
+    check_png(data, MIN_PREVIEW_BYTES)
+
+
+@pytest.mark.parametrize("kind", plots.KINDS + ("preview",))
+def test_pictures_of_different_documents_differ(documents, kind):
+    a, b = documents("cmu_02_01_walk.bvh"), documents("bandai2_run_normal_001.bvh")
+
+    def draw(doc):
+        fig = plots.preview_figure(doc, at="frames", count=8) if kind == "preview" else plots.plot_figure(doc, kind)
+        return plots.png_bytes(fig, TEST_DPI)
+
+    assert differing(draw(a), draw(b)) > 0.02
+
+
+def test_an_edit_shows_in_timing_and_curves(documents):
+    from staggered_cli.ops.timing import succession
+
+    doc = documents("cmu_02_01_walk.bvh")
+    loose = succession(doc, 0.03, 1.0, joint="LeftArm", clamp=True)
+    for kind in ("timing", "curves"):
+        opts = {"joints": ["LeftArm", "LeftForeArm", "LeftHand"]}
+        a = plots.png_bytes(plots.plot_figure(doc, kind, **opts), TEST_DPI)
+        b = plots.png_bytes(plots.plot_figure(loose, kind, **opts), TEST_DPI)
+        assert differing(a, b) > 0.002, kind
+
+
+def test_signals_without_stored_signals_say_so():
+    motion = load_input(str(mocap("bandai2_run_normal_001.bvh")))
+    doc = D.from_motion(motion, np.arange(0.0, 2.0, 0.25))
+    fig = plots.signals_figure(doc)
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert any("no signals" in t for t in texts), texts
+    check_png(plots.png_bytes(fig, TEST_DPI), 10_000)
+
+
+# ------------------------------------------------------------- rows, windows, views
+
+
+def test_rows_follow_the_hierarchy_and_skip_what_never_moves(documents):
+    doc = documents("bandai1_walk_normal_001.bvh")
+    rows = plots._rows(doc, None)
+    names = [v.name for v in rows]
+    # Bandai has position channels on every joint, constant but the hips'; its root is a static placeholder
+    assert names[:3] == ["Hips.position", "Hips", "Spine"]
+    assert "joint_Root" not in names and "Spine.position" not in names
+    assert len(names) == 22
+    targets = [v.target for v in rows]
+    assert targets == sorted(targets)
+
+
+def test_c3d_rows_run_from_head_to_feet(documents):
+    doc = documents("c3dorg_sample01_Eb015pi_walk.c3d")
+    rows = plots._rows(doc, None)
+    pts = doc.source.points
+    height = np.array([np.nanmedian(pts[:, v.target, 2]) for v in rows])  # Z up
+    assert np.all(np.diff(height) <= 1e-9)
+
+
+def test_joint_names_select_rows(documents):
+    doc = documents("cmu_02_01_walk.bvh")
+    rows = plots._rows(doc, ["LeftArm", "Hips"])
+    assert [v.name for v in rows] == ["Hips.position", "Hips", "LeftArm"]
+    assert [v.name for v in plots._rows(doc, ["Hips"], rotation_only=True)] == ["Hips"]
+    with pytest.raises(UsageError, match="unknown joint 'Nope'"):
+        plots._rows(doc, ["LeftArm", "Nope"])
+
+
+def test_time_window_must_meet_the_clip(documents):
+    doc = documents("bandai2_run_normal_001.bvh")
+    assert plots._window(doc, (-1.0, 1.0)) == (0.0, 1.0)
+    assert plots._window(doc, (1.0, np.inf)) == (1.0, doc.duration)
+    for bad in [(5.0, 6.0), (-2.0, -1.0), (1.0, 1.0)]:
+        with pytest.raises(UsageError, match="outside the clip"):
+            plots._window(doc, bad)
+
+
+def test_long_documents_show_their_first_poses_in_the_dope_sheet(documents):
+    doc = documents("cmu_85_12_breakdance_long.c3d")
+    if doc.n_poses <= plots.MAX_TIMING_POSES:
+        pytest.skip("not enough poses")
+    fig = plots.timing_figure(doc)
+    lo, hi = fig.axes[0].get_xlim()
+    assert hi < doc.duration / 2
+    assert "--time" in fig.get_suptitle()
+
+
+@pytest.mark.parametrize(
+    "name, up",
+    [
+        ("cmu_02_01_walk.bvh", (0, 1, 0)),
+        ("bandai1_dance-short_normal_001.bvh", (0, 1, 0)),
+        ("games105_idle.bvh", (0, 1, 0)),
+        ("c3dorg_sample01_Eb015pi_walk.c3d", (0, 0, 1)),
+        ("cmu_85_12_breakdance_long.c3d", (0, 0, 1)),
+        ("ezc3d_BTS_walk_gaps.c3d", (0, 1, 0)),
+    ],
+)
+def test_preview_finds_the_up_axis(name, up):
+    motion = load_input(str(mocap(name)))
+    pts = plots._figure_points(motion)[0]
+    view = plots.view_axes(pts)
+    np.testing.assert_allclose(view.up, up, atol=1e-12)
+    basis = np.stack([view.up, view.forward, view.lateral])
+    np.testing.assert_allclose(basis @ basis.T, np.eye(3), atol=1e-9)
+    assert view.top - view.floor > 0.5 * view.size
+
+
+def test_walks_are_seen_from_the_side(documents):
+    """The side view looks across the direction of travel."""
+    motion = load_input(str(mocap("cmu_02_01_walk.bvh")))
+    pts = plots._figure_points(motion)[0]
+    view = plots.view_axes(pts)
+    root = pts[:, 0]
+    travel = root[-1] - root[0]
+    travel -= (travel @ view.up) * view.up
+    assert abs(travel @ view.forward) > 0.99 * np.linalg.norm(travel)
+
+
+# ------------------------------------------------------------- preview
+
+
+def test_preview_strip_has_at_most_twelve_panels(documents):
+    doc = documents("cmu_01_01_forward_jumps.bvh")
+    assert doc.n_poses > plots.MAX_PANELS
+    fig = plots.preview_figure(doc)
+    assert len(fig.axes) == 2 * plots.MAX_PANELS
+    fig = plots.preview_figure(doc, at="frames", count=5)
+    assert len(fig.axes) == 10
+
+
+def test_preview_compares_two_clips():
+    motion = load_input(str(mocap("cmu_02_01_walk.bvh")))
+    doc = make_document("cmu_02_01_walk.bvh")
+    fig = plots.preview_figure(doc, compare=motion, name="walk.stag", compare_name="walk.bvh")
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert labels == ["walk.stag", "walk.bvh"]
+    alone = plots.png_bytes(plots.preview_figure(doc, name="walk.stag", compare_name="walk.bvh"), TEST_DPI)
+    both = plots.png_bytes(fig, TEST_DPI)
+    assert alone != both
+
+
+def gif_frames(data: bytes) -> tuple[int, list[int]]:
+    assert data[:6] in (b"GIF87a", b"GIF89a")
+    with Image.open(io.BytesIO(data)) as im:
+        durations = []
+        for n in range(im.n_frames):
+            im.seek(n)
+            durations.append(im.info.get("duration", 0))
+        return im.n_frames, durations
+
+
+def test_gif_animates_the_clip():
+    motion = load_input(str(mocap("bandai2_run_normal_001.bvh")))  # 68 frames at 30 Hz
+    n, durations = gif_frames(plots.preview_gif(motion, dpi=40))
+    assert n == 34  # every other frame: 15 per second, real time
+    assert all(60 <= d <= 70 for d in durations)
+    n, _ = gif_frames(plots.preview_gif(motion, count=6, dpi=40))
+    assert n == 6
+
+
+def test_gif_of_poses_holds_each_pose(documents):
+    doc = documents("c3dorg_sample01_Eb015pi_walk.c3d")
+    n, durations = gif_frames(plots.preview_gif(doc, at="poses", dpi=40))
+    assert n == doc.n_poses
+    assert all(100 <= d <= 1000 for d in durations)
+
+
+# ------------------------------------------------------------- demo pictures
+
+
+def test_demo_pictures_are_small(tmp_path):
+    motion = load_input(str(SAMPLES / "march.bvh"))
+    extract = _extract()
+    doc = extract(motion, source_name="march.bvh") if extract else D.from_motion(motion, np.arange(0, 3.9, 0.25))
+    paths = plots.demo_pictures(doc, tmp_path, name="march.bvh")
+    assert [p.name for p in paths] == ["signals.png", "timing.png", "curves.png", "preview.png"]
+    for p in paths:
+        check_png(p.read_bytes(), 10_000)
+        assert p.stat().st_size < 150_000, (p.name, p.stat().st_size)
+
+
+# ------------------------------------------------------------- the commands
+
+
+@pytest.fixture(scope="module")
+def doc_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("plots") / "walk.stag"
+    write_doc(make_document("cmu_02_01_walk.bvh"), path)
+    return path
+
+
+def test_plot_command_writes_a_png(doc_file, tmp_path):
+    out = tmp_path / "timing.png"
+    args = ["--kind", "timing", "--joints", "LeftArm,LeftForeArm", "--time", "0.5:2", "--dpi", TEST_DPI]
+    result = run(["plot", doc_file, *args, "-o", out])
+    assert result.exit_code == 0, result.stderr
+    check_png(out.read_bytes(), 10_000, (720, 420))
+    one_line_error(run(["plot", doc_file, "-o", out]), 2, "exists", "--force")
+    assert run(["plot", doc_file, "--dpi", TEST_DPI, "-o", out, "--force"]).exit_code == 0
+
+
+def test_plot_to_stdout(doc_file):
+    result = run(["plot", doc_file, "--kind", "curves", "--dpi", TEST_DPI, "-o", "-"])
+    assert result.exit_code == 0, result.stderr
+    check_png(result.stdout_bytes, MIN_PLOT_BYTES)
+
+
+NINE_JOINTS = "LeftArm,LeftForeArm,LeftHand,RightArm,RightForeArm,RightHand,LeftUpLeg,LeftLeg,RightLeg"
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["--joints", "LeftArm,NoSuchJoint"], ["walk.stag", "unknown joint 'NoSuchJoint'"]),
+        (["--time", "10:20"], ["walk.stag", "outside the clip"]),
+        (["--time", "2:1"], ["--time"]),
+        (["--time", "abc"], ["--time"]),
+        (["--kind", "pie"], ["--kind"]),
+        (["--kind", "curves", "--joints", NINE_JOINTS], ["at most 8"]),
+    ],
+)
+def test_plot_usage_errors(doc_file, tmp_path, args, needles):
+    out = tmp_path / "x.png"
+    one_line_error(run(["plot", doc_file, *args, "-o", out]), 2, *needles)
+    assert not out.exists()
+
+
+def test_plot_needs_a_document(tmp_path):
+    one_line_error(run(["plot", mocap("cmu_02_01_walk.bvh"), "-o", tmp_path / "x.png"]), 2, "staggered extract")
+
+
+def test_preview_command_png_and_gif(doc_file, tmp_path):
+    bvh = mocap("cmu_02_01_walk.bvh")
+    png = tmp_path / "p.png"
+    result = run(["preview", bvh, "--at", "frames", "5", "--dpi", TEST_DPI, "-o", png])
+    assert result.exit_code == 0, result.stderr
+    check_png(png.read_bytes(), 5_000)
+    gif = tmp_path / "p.gif"
+    result = run(["preview", doc_file, "--compare", bvh, "--at", "frames:4", "--dpi", 40, "-o", gif])
+    assert result.exit_code == 0, result.stderr
+    assert gif_frames(gif.read_bytes())[0] == 4
+    one_line_error(run(["preview", bvh, "-o", gif]), 2, "exists")
+    result = run(["preview", bvh, "--format", "gif", "--at", "frames", "3", "--dpi", 40, "-o", "-"])
+    assert result.exit_code == 0, result.stderr
+    assert gif_frames(result.stdout_bytes)[0] == 3
+
+
+@pytest.mark.parametrize("at", ["bob", "frames:0", "poses:3", "frames:x"])
+def test_preview_at_errors(tmp_path, at):
+    one_line_error(run(["preview", mocap("cmu_02_01_walk.bvh"), "--at", at, "-o", tmp_path / "x.png"]), 2, "--at")
+
+
+def test_preview_of_c3d_markers(tmp_path):
+    out = tmp_path / "c.png"
+    result = run(["preview", mocap("ezc3d_BTS_walk_gaps.c3d"), "--dpi", TEST_DPI, "-o", out])
+    assert result.exit_code == 0, result.stderr
+    check_png(out.read_bytes(), 5_000)
+
+
+def test_join_at():
+    assert join_at(["x", "--at", "frames", "6", "-o", "y"]) == ["x", "--at", "frames:6", "-o", "y"]
+    assert join_at(["--at=frames", "6"]) == ["--at", "frames:6"]
+    assert join_at(["--at", "poses", "6"]) == ["--at", "poses", "6"]
+    assert join_at(["--", "--at", "frames", "6"]) == ["--", "--at", "frames", "6"]
+
+
+def test_commands_import_no_matplotlib_or_numpy():
+    code = (
+        "import sys; import staggered_cli.cli.plot, staggered_cli.cli.preview; "
+        "print(sorted(m for m in ('numpy', 'matplotlib') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
