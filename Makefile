@@ -86,6 +86,7 @@ samples: $(STAMP)
 # summary names each failure with its reason.  Spaces in paths work; names
 # with " $ ` \ : % # do not (make and the shell would read them).
 STAGGERED ?= $(BIN)/staggered
+export STEPS
 BATCH_IN = $(patsubst %/,%,$(IN))
 BATCH_OUT = $(patsubst %/,%,$(OUT))
 BATCH_FIND = find . -xtype f \( -iname '*.bvh' -o -iname '*.c3d' \) | LC_ALL=C sort | sed 's|^\./||'
@@ -108,7 +109,6 @@ batch: $(STAMP)
 	exit $$status
 
 ifneq ($(filter _batch-files,$(MAKECMDGOALS)),)
-export STEPS
 # make splits its word lists on spaces: a space in a path travels as \037
 # and becomes an escaped space only in the rules
 BATCH_US := $(shell printf '\037')

@@ -47,6 +47,7 @@ COMMANDS: dict[str, str] = {
     "bake": "staggered_cli.cli.bake:bake",
     "plot": "staggered_cli.cli.plot:plot",
     "preview": "staggered_cli.cli.preview:preview",
+    "batch": "staggered_cli.cli.batch:batch",
 }
 
 EXIT_INTERRUPTED = 130

@@ -1,0 +1,381 @@
+"""Batch processing of a mocap library: ``extract | STEP | ... | bake`` per file.
+
+For every BVH and C3D file under an input folder (recursively, any case of
+the extension) this runs the same pipeline as the shell form::
+
+    staggered extract IN/rel -o - | staggered STEP1 - -o - | ... | staggered bake - -o OUT/rel
+
+but in one process per worker: each stage is the real click command, parsed
+by click from the step's own words and invoked in-process with its standard
+input and output bound to memory.  A step therefore has exactly the options,
+checks and messages of its command, and the two forms (this module and
+``make batch``) give the same files.
+
+Steps are written as in ``--steps 'cull --keep 30%|succession --joint
+LeftShoulder --offset 0.02 --power 2'``: split on ``|``, each part split
+with shell quoting rules (:mod:`shlex`), without a FILE or ``-o`` (the batch
+supplies them).  Only commands that turn a document into a document can be
+steps (:data:`STEP_COMMANDS`).
+
+Up to date: an output is rebuilt when it is missing or older than its input
+(make's rule; changing the steps does not make outputs stale: use ``force``).
+A file that fails leaves no output: the bake writes atomically, and an
+output left from an earlier run is removed, since it no longer matches its
+input.
+
+Nothing heavy is imported at module level: the stages import their own
+libraries when they run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import shlex
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+
+from .errors import DataError, StaggeredError, UsageError
+
+#: Commands that read a document and write a document: the possible steps.
+STEP_COMMANDS = ("cull", "edit-pose", "succession", "randomize")
+
+#: File name endings (compared without case) that the batch picks up.
+EXTENSIONS = (".bvh", ".c3d")
+
+DONE, SKIPPED, FAILED, TODO = "done", "skipped", "failed", "todo"
+
+_STDIO_NAMES = (None, "-", "<stdin>", "<stdout>")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One document -> document stage: a command name and its words."""
+
+    name: str
+    args: tuple[str, ...]
+    text: str  # as the user wrote it, for messages
+
+    def argv(self) -> list[str]:
+        """The words to parse: the step's own, then stdin in and stdout out."""
+        return [*self.args, "-", "-o", "-"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """One input file and where its output goes (``rel`` is relative to both folders)."""
+
+    rel: str
+    src: str
+    dst: str
+
+
+@dataclass(frozen=True)
+class Result:
+    """What happened to one file: ``status`` is done, skipped, failed (or todo in a dry run)."""
+
+    rel: str
+    status: str
+    seconds: float | None = None
+    reason: str = ""
+    messages: tuple[str, ...] = ()  # warnings the stages wrote on stderr
+
+
+def _one_line(text: str) -> str:
+    return " ".join(line.strip() for line in str(text).splitlines() if line.strip())
+
+
+def _command(name: str):
+    """The click command registered as ``name`` (imported on first use)."""
+    import importlib
+
+    from .cli.main import COMMANDS
+
+    module_name, attr = COMMANDS[name].split(":")
+    return getattr(importlib.import_module(module_name), attr)
+
+
+@contextlib.contextmanager
+def _stdio(data: bytes) -> Iterator[tuple[io.BytesIO, io.StringIO]]:
+    """Bind stdin to ``data`` and stdout / stderr to memory, as a pipe would.
+
+    Yields the BytesIO that receives standard output and the StringIO that
+    receives standard error (where the commands log their warnings).
+    """
+    saved = sys.stdin, sys.stdout, sys.stderr
+    out, err = io.BytesIO(), io.StringIO()
+    stdin = io.TextIOWrapper(io.BytesIO(data))
+    stdout = io.TextIOWrapper(out, write_through=True)
+    sys.stdin, sys.stdout, sys.stderr = stdin, stdout, err
+    try:
+        yield out, err
+    finally:
+        sys.stdin, sys.stdout, sys.stderr = saved
+        stdout.flush()
+        stdout.detach()  # keep `out` open: the wrapper would close it when collected
+        stdin.detach()
+
+
+def _invoke(name: str, argv: Sequence[str], data: bytes, messages: list[str]) -> bytes:
+    """Run command ``name`` on ``argv`` with ``data`` as its standard input.
+
+    Returns what it wrote on standard output; what it wrote on standard
+    error is appended to ``messages``.  Its exceptions propagate unchanged.
+    """
+    command = _command(name)
+    with _stdio(data) as (out, err):
+        try:
+            with command.make_context(name, list(argv)) as ctx:
+                command.invoke(ctx)
+        finally:
+            messages.extend(line for line in err.getvalue().splitlines() if line.strip())
+    return out.getvalue()
+
+
+def parse_steps(text: str | None) -> list[Step]:
+    """Parse and check ``'cmd opts|cmd opts|...'`` before any file is read.
+
+    Every step is parsed by its own click command and run up to the point
+    where it reads its input (here empty), so that a bad option or value
+    fails now, once, instead of on every file.
+
+    Raises
+    ------
+    UsageError
+        One line naming the step: an unknown or unsuitable command, a FILE or
+        ``-o`` in the step, or an option the command refuses.
+    """
+    import click
+
+    steps: list[Step] = []
+    if text is None or not text.strip():
+        return steps
+    for i, part in enumerate(text.split("|"), start=1):
+        part = part.strip()
+        where = f"--steps: step {i} ({part!r})" if part else f"--steps: step {i}"
+        try:
+            words = shlex.split(part)
+        except ValueError as err:
+            raise UsageError(f"{where}: {err}") from None
+        if not words:
+            raise UsageError(f"{where}: empty step (two '|' in a row, or a '|' at an end)")
+        name, args = words[0], tuple(words[1:])
+        if name not in STEP_COMMANDS:
+            from .cli.main import COMMANDS
+
+            if name in ("extract", "bake"):
+                what = f"{name!r} is not a step: extract and bake are implied"
+            elif name in COMMANDS:
+                what = f"{name!r} does not turn a document into a document"
+            else:
+                what = f"unknown command {name!r}"
+            raise UsageError(f"{where}: {what} (steps: {', '.join(STEP_COMMANDS)})")
+        if any(a.startswith(("-o", "--output")) for a in args):
+            raise UsageError(f"{where}: a step takes no -o: the batch passes each step's output to the next")
+        command = _command(name)
+        try:
+            # a FILE here would be read instead of the previous stage's output
+            probe = command.make_context(name, list(args), resilient_parsing=True)
+            given = probe.params.get("input_path")
+        except click.exceptions.ClickException:
+            given = None  # the full parse below reports it
+        if given is not None:
+            raise UsageError(f"{where}: a step takes no FILE: the batch feeds it the previous stage's output")
+        step = Step(name, args, part)
+        try:
+            _invoke(name, step.argv(), b"", [])
+        except DataError:
+            pass  # the options passed; the (empty) input did not: as expected
+        except click.exceptions.Exit:
+            raise UsageError(f"{where}: not a step (for help: staggered {name} --help)") from None
+        except click.exceptions.ClickException as err:
+            raise UsageError(f"{where}: {_one_line(err.format_message())}") from None
+        except StaggeredError as err:
+            raise UsageError(f"{where}: {_one_line(err.message)}") from None
+        steps.append(step)
+    return steps
+
+
+def find_inputs(in_dir: str) -> list[str]:
+    """Paths, relative to ``in_dir`` and sorted, of the BVH and C3D files under it.
+
+    Regular files and links to files, at any depth; links to folders are not
+    followed (as ``find -xtype f``).
+    """
+    found: list[str] = []
+    for root, dirs, names in os.walk(in_dir):
+        dirs.sort()
+        for name in names:
+            path = os.path.join(root, name)
+            if name.lower().endswith(EXTENSIONS) and os.path.isfile(path):
+                found.append(os.path.relpath(path, in_dir))
+    return sorted(found)
+
+
+def _stale(src: str, dst: str) -> bool:
+    """make's rule: rebuild when the output is missing or older than the input."""
+    try:
+        return os.stat(dst).st_mtime_ns < os.stat(src).st_mtime_ns
+    except FileNotFoundError:
+        return True
+
+
+def _inside(path: str, folder: str) -> bool:
+    path, folder = os.path.realpath(path), os.path.realpath(folder)
+    return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
+
+
+def plan(in_dir: str, out_dir: str, force: bool = False) -> tuple[list[Job], list[Result]]:
+    """The files to build and the ones already up to date.
+
+    Raises ``UsageError`` when ``in_dir`` is not a folder or ``out_dir`` lies
+    inside it (the outputs would become inputs of the next run).
+    """
+    if not os.path.isdir(in_dir):
+        raise UsageError("is not a folder", source=in_dir)
+    if _inside(out_dir, in_dir):
+        raise UsageError(f"the output folder {out_dir!r} must not be inside the input folder", source=in_dir)
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise UsageError("output is not a folder", source=out_dir)
+    todo: list[Job] = []
+    skipped: list[Result] = []
+    for rel in find_inputs(in_dir):
+        job = Job(rel, os.path.join(in_dir, rel), os.path.join(out_dir, rel))
+        if force or _stale(job.src, job.dst):
+            todo.append(job)
+        else:
+            skipped.append(Result(rel, SKIPPED))
+    return todo, skipped
+
+
+def _reason(stage: str, err: BaseException, job: Job) -> str:
+    """One line: the stage and what went wrong (the file is named by the table)."""
+    import click
+
+    if isinstance(err, StaggeredError):
+        text = err.message if err.source in _STDIO_NAMES or err.source in (job.src, job.dst) else str(err)
+    elif isinstance(err, click.exceptions.ClickException):
+        text = err.format_message()
+    else:
+        text = f"internal error: {type(err).__name__}: {err}"
+    return f"{stage}: {_one_line(text)}"
+
+
+def run_file(job: Job, steps: Sequence[Step]) -> Result:
+    """Extract, apply ``steps`` and bake one file; never raises for a bad file."""
+    start = time.perf_counter()
+    messages: list[str] = []
+    stage = "extract"
+    try:
+        data = _invoke("extract", ["-o", "-", "--", job.src], b"", messages)
+        for step in steps:
+            stage = step.name
+            data = _invoke(step.name, step.argv(), data, messages)
+        stage = "bake"
+        os.makedirs(os.path.dirname(job.dst) or ".", exist_ok=True)
+        _invoke("bake", ["--force", "-o", job.dst, "-"], data, messages)
+    except Exception as err:  # one file's failure, whatever it is, is reported and the batch goes on
+        _remove_stale(job.dst)
+        return Result(job.rel, FAILED, time.perf_counter() - start, _reason(stage, err, job), tuple(messages))
+    return Result(job.rel, DONE, time.perf_counter() - start, "", tuple(messages))
+
+
+def _remove_stale(path: str) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass  # nothing there (the usual case), or not removable: the failure itself is what gets reported
+
+
+def _init_worker(level: int) -> None:
+    from .cli.main import configure_logging, log
+
+    configure_logging(0, 0)
+    log.setLevel(level)
+
+
+def _worker(job: Job, steps: Sequence[Step]) -> Result:
+    return run_file(job, steps)
+
+
+def run_batch(
+    jobs: Sequence[Job],
+    steps: Sequence[Step],
+    workers: int,
+    on_result: Callable[[Result], None] | None = None,
+) -> list[Result]:
+    """Process ``jobs`` with ``workers`` processes (in this process when 1).
+
+    The largest files are started first, so that the last worker to finish
+    is not the one that drew the longest clip at the end.  ``on_result`` is
+    called in this process as each file finishes.
+    """
+    import logging
+
+    order = sorted(jobs, key=lambda j: -_size(j.src))
+    results: list[Result] = []
+
+    def done(result: Result) -> None:
+        results.append(result)
+        if on_result is not None:
+            on_result(result)
+
+    workers = max(1, min(workers, len(order)))
+    if workers == 1:
+        for job in order:
+            done(run_file(job, steps))
+        return results
+
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    level = logging.getLogger("staggered_cli").getEffectiveLevel()
+    # spawn: no fork of a process that may run threads (the progress bar's monitor)
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(level,),
+    )
+    try:
+        futures = {pool.submit(_worker, job, tuple(steps)): job for job in order}
+        for future in as_completed(futures):
+            job = futures[future]
+            try:
+                done(future.result())
+            except BrokenProcessPool:
+                done(Result(job.rel, FAILED, None, "worker process died (out of memory?)"))
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return results
+
+
+def _size(path: str) -> int:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return 0
+
+
+def summary_table(results: Sequence[Result]) -> list[str]:
+    """The lines of the summary: one row per file (sorted by path)."""
+    rows = [("file", "status", "seconds", "reason")]
+    for r in sorted(results, key=lambda r: r.rel):
+        rows.append((r.rel, r.status, "-" if r.seconds is None else f"{r.seconds:.2f}", r.reason))
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows)
+    w2 = max(len(r[2]) for r in rows)
+    return [f"{a:<{w0}}  {b:<{w1}}  {c:>{w2}}  {d}".rstrip() for a, b, c, d in rows]
+
+
+def counts(results: Sequence[Result]) -> dict[str, int]:
+    out = {DONE: 0, SKIPPED: 0, FAILED: 0}
+    for r in results:
+        out[r.status] = out.get(r.status, 0) + 1
+    return out
