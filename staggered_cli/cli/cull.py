@@ -34,8 +34,11 @@ def cull(input_path, keep, interval, select, add_times, ignore_contacts, output,
 
     check_output(output, force)
     times = [finite(t, "--add-time") for t in add_times]
+    choosing = keep is not None or interval is not None or select is not None
+    if not choosing and not times:
+        raise click.UsageError("say what to keep: --keep, --interval, --select, or --add-time")
     doc = read_document(input_path)
-    if keep is not None or interval is not None or select is not None:
+    if choosing:
         mask = choose(
             doc,
             keep=keep,
@@ -44,8 +47,6 @@ def cull(input_path, keep, interval, select, add_times, ignore_contacts, output,
             ignore_contacts=ignore_contacts,
         )
         doc = keep_poses(doc, mask)
-    elif not times:
-        raise click.UsageError("say what to keep: --keep, --interval, --select, or --add-time")
     for t in times:
         doc = add_pose(doc, t)
     write_document(doc, output, fmt, force)
