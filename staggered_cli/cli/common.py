@@ -100,6 +100,18 @@ def triples(values: tuple[str, ...], what: str) -> dict[str, tuple[float, float,
     return out
 
 
+def timing_options(command):
+    """``--poses``, ``--time`` and ``--clamp``: which poses a timing edit
+    touches and what to do when knots would cross (succession, randomize)."""
+    command = click.option("--clamp", is_flag=True, help="Stop knots short of their neighbours instead of refusing.")(
+        command
+    )
+    command = click.option("--time", "time", metavar="A:B", help="Only the poses between A and B seconds.")(command)
+    return click.option("--poses", metavar="K,K,...", help="Only these poses (default: all but the first and last).")(
+        command
+    )
+
+
 def pose_mask(doc, poses: str | None, time: str | None):
     from ..ops.timing import select_poses
 

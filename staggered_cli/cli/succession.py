@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .common import check_output, finite, name_list, pose_mask, read_document, write_document
+from .common import check_output, finite, name_list, pose_mask, read_document, timing_options, write_document
 from .options import force_option, format_option, input_argument, output_option
 
 
@@ -25,9 +25,7 @@ from .options import force_option, format_option, input_argument, output_option
     metavar="L",
     help="Nonlinearity: r += S * depth**L (1 = linear).",
 )
-@click.option("--poses", metavar="K,K,...", help="Only these poses (default: all but the first and last).")
-@click.option("--time", "time", metavar="A:B", help="Only the poses between A and B seconds.")
-@click.option("--clamp", is_flag=True, help="Stop knots short of their neighbours instead of refusing.")
+@timing_options
 @output_option
 @force_option
 @format_option
