@@ -24,7 +24,7 @@ from ..motion import (
     local_rotations_from_channels,
     local_translations_from_channels,
 )
-from ..skeleton import forward_kinematics
+from ..skeleton import end_site_positions, figure_height, forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
@@ -96,13 +96,13 @@ def _contact_layer(
     sk = src.skeleton
     _, wp = forward_kinematics(sk, rot, tr)
     src_rot = local_rotations_from_channels(sk, src.channels)
-    src_wp = forward_kinematics(sk, src_rot, local_translations_from_channels(sk, src.channels))[1]
+    src_wr, src_wp = forward_kinematics(sk, src_rot, local_translations_from_channels(sk, src.channels))
+    size = figure_height(sk, src_wp, end_site_positions(sk, src_wr, src_wp))  # one FK pass serves both
     if not same_rate:  # the source's positions at the output times
         f = np.clip(t / doc.frame_time, 0, doc.n_frames - 1)
         lo = np.floor(f).astype(int)
         hi = np.minimum(lo + 1, doc.n_frames - 1)
         src_wp = src_wp[lo] + (src_wp[hi] - src_wp[lo]) * (f - lo)[:, None, None]
-    size = src.figure_height()
     todo, targets = [], []
     for c in doc.constraints:
         if c.joint not in sk.names:
