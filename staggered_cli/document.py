@@ -12,6 +12,7 @@ global order is the second axis of refinement arrays ``(K, V)``.
 from __future__ import annotations
 
 import hashlib
+import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -27,6 +28,7 @@ from .motion import (
     rotation_columns,
 )
 from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
+from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
 
 FORMAT_NAME = "staggered-poses"
 FORMAT_VERSION = 1
@@ -123,17 +125,15 @@ class Document:
 
 def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]]:
     """The control variables of a clip as (kind, names, targets, dense values (T, V, D))."""
+    layout = variable_layout(motion)
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
-        rot = local_rotations_from_channels(sk, motion.channels)
-        tr = local_translations_from_channels(sk, motion.channels)
-        pos_j = [j for j, _ in position_columns(sk)]
-        rot_j = [j for j, _, _ in rotation_columns(sk)]
-        return [
-            (TRANSLATION, tuple(f"{sk.names[j]}.position" for j in pos_j), np.array(pos_j, dtype=int), tr[:, pos_j]),
-            (ROTATION, tuple(sk.names[j] for j in rot_j), np.array(rot_j, dtype=int), rot[:, rot_j]),
-        ]
-    return [(TRANSLATION, tuple(motion.labels), np.arange(len(motion.labels)), fill_gaps(motion.points))]
+        dense = {
+            ROTATION: local_rotations_from_channels(sk, motion.channels),
+            TRANSLATION: local_translations_from_channels(sk, motion.channels),
+        }
+        return [(kind, names, targets, dense[kind][:, targets]) for kind, names, targets in layout]
+    return [(*layout[0], fill_gaps(motion.points))]
 
 
 def fill_gaps(points: np.ndarray) -> np.ndarray:
@@ -385,7 +385,8 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     need(isinstance(manifest, dict), "manifest is not a JSON object")
     need(manifest.get("format") == FORMAT_NAME, f"format is {str(manifest.get('format'))[:40]!r}, not {FORMAT_NAME!r}")
     version = manifest.get("version")
-    need(isinstance(version, int), "version is missing")
+    need(type(version) is int, "version is missing")
+    need(version >= 1, f"bad document version {version} (expected a whole number >= 1)")
     need(
         version <= FORMAT_VERSION,
         f"document version {version} is newer than this staggered reads ({FORMAT_VERSION}); upgrade staggered",
@@ -418,11 +419,24 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 end_offsets=np.array(b["end_offsets"], dtype=float).reshape(-1, 3),
             )
             need(len(sk.channels) == J, "bvh channels do not match the joints")
+            # names and channels are written back into a BVH header: they must read back
+            need(len(set(names)) == J, "bvh joint names are not unique")
+            need(all(_BVH_NAME.fullmatch(n) for n in names), "a bvh joint name is empty or has braces or line breaks")
+            need(
+                all(set(c) <= _BVH_CHANNELS and len(set(c)) == len(c) for c in sk.channels),
+                "bvh channels hold an unknown or repeated channel name",
+            )
+            need(
+                bool(np.all(np.abs(sk.offsets) <= _MAX_MAGNITUDE))
+                and bool(np.all(np.abs(sk.end_offsets) <= _MAX_MAGNITUDE)),
+                f"bvh offsets are not all finite numbers within ±{_MAX_MAGNITUDE:g}",
+            )
             need(
                 bool(np.all(sk.parents < np.arange(J))) and bool(np.all(sk.parents >= -1)),
                 "bvh parents are not in hierarchy order",
             )
             need(bool(np.all((sk.end_parents >= 0) & (sk.end_parents < J))), "bvh end sites name unknown joints")
+            need(len(sk.end_parents) == len(sk.end_offsets), "bvh end sites and their offsets differ in number")
             ch = arr("source.channels", 2)
             need(
                 ch.shape == (frames, sum(len(c) for c in sk.channels)),
@@ -433,6 +447,16 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             )
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")
+            need(
+                bool(np.all(np.abs(ch) <= _MAX_MAGNITUDE)),
+                f"source.channels are not all finite numbers within ±{_MAX_MAGNITUDE:g}",
+            )
+            text = source.frame_time_text
+            need(
+                text == ""
+                or (_FRAME_TIME.fullmatch(text) is not None and abs(float(text) / source.frame_time - 1) < 1e-4),
+                f"frame_time_text {text[:20]!r} is not the frame time",
+            )
         else:
             c = manifest["c3d"]
             labels = tuple(str(x) for x in c["labels"])
@@ -441,7 +465,18 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 pts.shape == (frames, len(labels), 3),
                 f"source.points has shape {pts.shape}, expected ({frames}, {len(labels)}, 3)",
             )
+            need(
+                not bool(np.any(np.abs(pts) > _MAX_MAGNITUDE)),
+                f"source.points hold values that are infinite or beyond ±{_MAX_MAGNITUDE:g}",
+            )
             raw = arr("source.c3d", 1, "u")
+            if raw.size:  # baking rewrites it: refuse a broken one now, naming the document
+                from .io.c3d import check_c3d
+
+                try:
+                    check_c3d(raw.tobytes(), "source.c3d")
+                except DataError as exc:
+                    need(False, str(exc))
             source = MarkerMotion(labels, pts, float(c["rate"]), str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
     except (KeyError, TypeError, ValueError) as exc:
@@ -455,8 +490,15 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         "pose times must be finite and strictly increasing",
     )
     need(not np.any(np.isnan(priority)), "priorities must not be NaN")
+    duration = (frames - 1) * frame_time
+    need(
+        abs(pose_t[0]) < 1e-6 and abs(pose_t[-1] - duration) < 1e-6,
+        f"pose times must run from the first frame to the last (0 to {duration:.4f} s)",
+    )
     tracks = []
     need(isinstance(track_info, list), "tracks must be a list")
+    layout = variable_layout(source)
+    need(len(track_info) == len(layout), f"{len(track_info)} tracks for the source's {len(layout)}")
     for n, info in enumerate(track_info):
         try:
             tkind = info["kind"]
@@ -465,8 +507,34 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         except (KeyError, TypeError, ValueError):
             raise DataError(f"track {n} description is malformed") from None
         need(tkind in (TRANSLATION, ROTATION), f"track {n} has unknown kind {str(tkind)[:20]!r}")
-        tracks.append(_checked_track(n, tkind, tnames, targets, arrays, K, need, arr))
+        want_kind, want_names, want_targets = layout[n]
+        need(
+            tkind == want_kind and tnames == want_names and np.array_equal(targets, want_targets),
+            f"track {n} does not hold the source's {want_kind} variables (kind, names or targets differ)",
+        )
+        tracks.append(_checked_track(n, tkind, tnames, targets, arrays, pose_t, need, arr))
+    joints = set(source.skeleton.names) if isinstance(source, BvhMotion) else set(source.labels)
+    half_frame = 0.5 * frame_time
+    for c in constraints:
+        need(c.joint in joints, f"constraint on unknown joint or marker {c.joint[:40]!r}")
+        need(
+            bool(np.isfinite(c.start) and np.isfinite(c.end))
+            and -half_frame <= c.start <= c.end <= duration + half_frame,
+            f"constraint on {c.joint[:40]!r} from {c.start:g} to {c.end:g} s is not within the clip",
+        )
     signals = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("signal.")}
+    if isinstance(parameters, dict):  # what `constraints --detect` reuses must be usable
+        joints_param = parameters.get("contact_joints", [])
+        need(
+            isinstance(joints_param, list) and all(isinstance(j, str) for j in joints_param),
+            "parameters: contact_joints is not a list of names",
+        )
+        for key in ("min_contact", "contact_tolerance"):
+            value = parameters.get(key, 0.0)
+            need(
+                type(value) in (int, float) and np.isfinite(value) and value >= 0,
+                f"parameters: {key} is not a non-negative number",
+            )
     return Document(
         pose_t=pose_t,
         priority=priority,
@@ -481,14 +549,37 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
 
 
 def _safe_format(fmt: str) -> bool:
-    import re
-
     return re.fullmatch(r"%\.\d{1,2}[fg]", fmt) is not None
 
 
-def _checked_track(n, kind, names, targets, arrays, K, need, arr) -> Track:
+#: Largest magnitude of a source value (the readers' limit) and of a fitted
+#: one (knots, tangents, displacements; cubes of it stay finite): beyond them
+#: the spline and FK math overflows.
+_MAX_MAGNITUDE = 1e12
+_MAX_FITTED = 1e100
+_BVH_NAME = re.compile(r"[^\s{}]+( [^\s{}]+)*")
+_BVH_CHANNELS = set(POSITION_CHANNELS) | set(ROTATION_CHANNELS)
+_FRAME_TIME = re.compile(r"[+]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+def variable_layout(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[str, ...], np.ndarray]]:
+    """The control variables of a clip as (kind, names, targets), one entry
+    per track, in the order of :func:`dense_variables` (without its values)."""
+    if isinstance(motion, BvhMotion):
+        sk = motion.skeleton
+        pos_j = [j for j, _ in position_columns(sk)]
+        rot_j = [j for j, _, _ in rotation_columns(sk)]
+        return [
+            (TRANSLATION, tuple(f"{sk.names[j]}.position" for j in pos_j), np.array(pos_j, dtype=int)),
+            (ROTATION, tuple(sk.names[j] for j in rot_j), np.array(rot_j, dtype=int)),
+        ]
+    return [(TRANSLATION, tuple(motion.labels), np.arange(len(motion.labels)))]
+
+
+def _checked_track(n, kind, names, targets, arrays, pose_t, need, arr) -> Track:
     from .representation import check_knot_order
 
+    K = len(pose_t)
     V = len(names)
     D = 3 if kind == TRANSLATION else 4
     p = f"track{n}."
@@ -527,6 +618,11 @@ def _checked_track(n, kind, names, targets, arrays, K, need, arr) -> Track:
         (samp_d, "displacements"),
     ):
         need(bool(np.all(np.isfinite(a))), f"{p}{label} are not all finite")
+        need(bool(np.all(np.abs(a) <= _MAX_FITTED)), f"{p}{label} are beyond ±{_MAX_FITTED:g}")
+    need(
+        bool(np.all((knot_t >= pose_t[0] - 1e-6) & (knot_t <= pose_t[-1] + 1e-6))),
+        f"{p}knot times lie outside the clip",
+    )
     need(bool(np.all((knot_pose >= 0) & (knot_pose < K))), f"{p}knots name poses that do not exist")
     nseg = np.diff(knot_ptr) - 1
     owner = np.repeat(np.arange(V), np.diff(samp_ptr))
@@ -544,6 +640,19 @@ def _checked_track(n, kind, names, targets, arrays, K, need, arr) -> Track:
         check_knot_order(knot_ptr, knot_t, names)
     except Exception as exc:  # KnotOrderError is a usage error when editing, a data error when read
         raise DataError(f"{p}{exc}") from None
+    # every variable has one extreme knot per pose, in pose order, and its
+    # editing knots sit at their pose's time (else refinements are undefined)
+    var = np.repeat(np.arange(V), np.diff(knot_ptr))
+    ext = ~knot_editing.astype(bool)
+    need(
+        np.array_equal(var[ext], np.repeat(np.arange(V), K))
+        and np.array_equal(knot_pose[ext], np.tile(np.arange(K), V)),
+        f"{p}knots do not give every variable one extreme knot per pose",
+    )
+    need(
+        bool(np.all(np.abs(knot_t[~ext] - pose_t[knot_pose[~ext]]) < 1e-6)),
+        f"{p}editing knots do not sit at their pose times",
+    )
     return Track(
         kind,
         names,
@@ -573,7 +682,7 @@ def document_summary(doc: Document) -> dict:
             {
                 "index": k,
                 "time": round(float(doc.pose_t[k]), 9),
-                "priority": pr if np.isfinite(pr) else None,
+                "priority": round(pr, 9) if np.isfinite(pr) else None,
                 "refinements": r,
             }
         )

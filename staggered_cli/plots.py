@@ -751,7 +751,7 @@ def curves_figure(
         ax.tick_params(labelsize=7)
         ax.grid(color="0.92", lw=0.5)
     axes[-1].set_xlabel("time (s)")
-    axes[-1].set_xlim(lo, hi)
+    axes[-1].set_xlim(lo, hi if hi > lo else lo + 1.0)  # a one-frame clip has no extent
     handles = [Line2D([], [], color=c, lw=2, label=f"{a} channel") for a, c in _AXIS_COLORS.items()] + [
         Line2D([], [], color="0.3", lw=3.2, alpha=0.28, label="source (original)"),
         Line2D([], [], color="0.3", lw=1.0, ls=(0, (4, 2)), label="spline layer alone"),
@@ -854,7 +854,9 @@ def view_axes(points: np.ndarray) -> _View:
     forward /= np.linalg.norm(forward)
     lateral = np.cross(up, forward)
     h = pts @ up
-    return _View(up, forward, lateral, size, float(np.nanmin(h)), float(np.nanmax(h)))
+    h = h[np.isfinite(h)]
+    floor, top = (float(h.min()), float(h.max())) if h.size else (0.0, size)  # no marker ever seen
+    return _View(up, forward, lateral, size, floor, top)
 
 
 def _parse_at(at: str, count: int | None, n_poses: int | None) -> tuple[str, int | None]:

@@ -108,7 +108,12 @@ def test_document_records_signals_and_parameters():
     assert doc.signals["contact"].shape == (T,)
     assert np.all((doc.signals["p"] >= 0) & (doc.signals["p"] <= 1))
     assert set(doc.parameters) >= {
-        "smoothing", "filter_width", "refine_window", "min_contact", "contact_tolerance", "significance",
+        "smoothing",
+        "filter_width",
+        "refine_window",
+        "min_contact",
+        "contact_tolerance",
+        "significance",
         "contact_joints",
     }
     json.dumps(doc.parameters)  # JSON-able
@@ -120,8 +125,9 @@ def test_document_records_signals_and_parameters():
     np.testing.assert_allclose(inner, doc.signals["P"][f[1:-1]] * (doc.pose_t[2:] - doc.pose_t[:-2]))
 
 
-@pytest.mark.parametrize("name", ["cmu_01_01_forward_jumps.bvh", "bandai1_dance-short_normal_001.bvh",
-                                  "cmu_85_12_breakdance_long.c3d"])
+@pytest.mark.parametrize(
+    "name", ["cmu_01_01_forward_jumps.bvh", "bandai1_dance-short_normal_001.bvh", "cmu_85_12_breakdance_long.c3d"]
+)
 def test_refinements_are_whole_frames_bounded_and_closer_to_their_pose(name):
     doc = _extracted(name)
     ref = doc.refinements()

@@ -163,7 +163,8 @@ def constraints(
             raise UsageError(
                 f"no constraint {bad[0]} (the document has {n}: 0 to {n - 1})"
                 if n
-                else "the document has no constraints"
+                else "the document has no constraints",
+                source="<stdin>" if input_path == STDIO else input_path,
             )
         drop = {k % n for k in removes}
         cons = tuple(c for i, c in enumerate(cons) if i not in drop)

@@ -22,10 +22,9 @@ def _names(value: str | None) -> list[str] | None:
 def _read_motion(path: str):
     """The clip in ``path`` and its bytes; a document is refused."""
     from ..errors import DataError, StaggeredError, UsageError
-    from ..io import files
-    from .options import detect_kind
+    from .options import detect_kind, read_input
 
-    data, name = files.read_bytes(path)
+    data, name = read_input(path)
     try:
         kind = detect_kind(data)
     except ValueError as err:
@@ -59,20 +58,56 @@ def _read_motion(path: str):
     metavar="SECONDS",
     help="Laplacian smoothing of the curvature signals (standard deviation, seconds).  [default: 0.025]",
 )
-@click.option("--filter-width", type=float, default=0.15, show_default=True, metavar="SECONDS",
-              help="Tent filter width (full base) of the pose probability.")
-@click.option("--refine-window", type=float, default=0.25, show_default=True, metavar="SECONDS",
-              help="Largest timing refinement.")
-@click.option("--min-contact", type=float, default=0.1, show_default=True, metavar="SECONDS",
-              help="Shortest contact (the paper's 0.25 s misses running stance).")
-@click.option("--contact-tolerance", type=float, default=0.03, show_default=True, metavar="F",
-              help="How still a planted joint stays, as a fraction of the figure height.")
-@click.option("--significance", type=float, default=0.5, show_default=True, metavar="X",
-              help="Motion a pose needs, in figure heights per second summed over the body (0: keep all).")
+@click.option(
+    "--filter-width",
+    type=float,
+    default=0.15,
+    show_default=True,
+    metavar="SECONDS",
+    help="Tent filter width (full base) of the pose probability.",
+)
+@click.option(
+    "--refine-window", type=float, default=0.25, show_default=True, metavar="SECONDS", help="Largest timing refinement."
+)
+@click.option(
+    "--min-contact",
+    type=float,
+    default=0.1,
+    show_default=True,
+    metavar="SECONDS",
+    help="Shortest contact (the paper's 0.25 s misses running stance).",
+)
+@click.option(
+    "--contact-tolerance",
+    type=float,
+    default=0.03,
+    show_default=True,
+    metavar="F",
+    help="How still a planted joint stays, as a fraction of the figure height.",
+)
+@click.option(
+    "--significance",
+    type=float,
+    default=0.5,
+    show_default=True,
+    metavar="X",
+    help="Motion a pose needs, in figure heights per second summed over the body (0: keep all).",
+)
 @force_option
 @format_option
-def extract(input_path, output, contact_joints, smoothing, filter_width, refine_window, min_contact,
-            contact_tolerance, significance, force, fmt):
+def extract(
+    input_path,
+    output,
+    contact_joints,
+    smoothing,
+    filter_width,
+    refine_window,
+    min_contact,
+    contact_tolerance,
+    significance,
+    force,
+    fmt,
+):
     """Find staggered poses, timing refinements and contacts in FILE (BVH or C3D).
 
     Writes a staggered-pose document (NPZ, or JSON with --format json or an

@@ -79,8 +79,11 @@ def document_info(manifest: dict, arrays: dict) -> dict[str, Any]:
     return {"kind": "document", **document_summary(from_parts(manifest, arrays))}
 
 
-def summarize(obj, name: str) -> dict[str, Any]:
-    """The summary dict of what :func:`~.options.load_input` returned."""
+def summarize(obj, name: str, source: str | None = None) -> dict[str, Any]:
+    """The summary dict of what :func:`~.options.load_input` returned.
+
+    ``name`` is the ``file`` entry; errors name ``source`` (default ``name``),
+    the path as given, like every other message about the file."""
     from ..motion import BvhMotion, MarkerMotion
 
     if isinstance(obj, BvhMotion):
@@ -91,7 +94,7 @@ def summarize(obj, name: str) -> dict[str, Any]:
         try:
             summary = document_info(*obj)
         except StaggeredError as err:
-            err.with_source(name)
+            err.with_source(source or name)
             raise
     return {"file": name, **summary}
 
@@ -141,7 +144,7 @@ def info(input_path: str, as_json: bool) -> None:
     """
     obj = load_input(input_path)
     name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
-    summary = summarize(obj, name)
+    summary = summarize(obj, name, "<stdin>" if input_path == "-" else input_path)
     if as_json:
         click.echo(json.dumps(summary, sort_keys=True, indent=1, ensure_ascii=False))
     else:

@@ -98,7 +98,36 @@ def detect_kind(data: bytes) -> str:
         return "bvh"
     if not data:
         raise ValueError("empty file")
+    if data.startswith((b"\xff\xfe", b"\xfe\xff", b"\x00\x00\xfe\xff")) or b"\x00" in data[:2]:
+        for enc in ("utf-32", "utf-16", "utf-16-le", "utf-16-be"):
+            try:
+                head = data[:256].decode(enc, errors="ignore").lstrip("\ufeff \t\r\n")
+            except UnicodeError:
+                continue
+            if head.upper().startswith(("HIERARCHY", "{")):
+                raise ValueError(f"is {enc.upper()[:6]} text: save it as UTF-8 (BVH and JSON are read as UTF-8)")
     raise ValueError("not a BVH, C3D or staggered-poses document (unrecognized content)")
+
+
+def _refuse_early(head: bytes) -> None:
+    """Probe of :func:`read_input` on the first bytes of a large input."""
+    try:
+        kind = detect_kind(head)
+    except ValueError as err:
+        raise DataError(str(err)) from None
+    if kind == "bvh":
+        from ..io.bvh import check_header
+
+        check_header(head)
+
+
+def read_input(path: str) -> tuple[bytes, str]:
+    """The bytes of ``path`` (``-``: stdin) and its display name; an input
+    that is not a BVH, C3D or document, or a BVH whose header is too long,
+    is refused after its first 16 MiB without reading the rest."""
+    from ..io.bvh import MAX_HEADER_BYTES
+
+    return files.read_bytes(path, probe=_refuse_early, probe_bytes=MAX_HEADER_BYTES + 64)
 
 
 def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
@@ -108,7 +137,7 @@ def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
     :class:`~staggered_cli.motion.MarkerMotion`, or a document as
     ``(manifest, arrays)``.  Errors are ``DataError`` naming the file.
     """
-    data, name = files.read_bytes(path)
+    data, name = read_input(path)
     try:
         kind = detect_kind(data)
     except ValueError as err:

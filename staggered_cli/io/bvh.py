@@ -22,6 +22,9 @@ from ..skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
 MAX_HEADER_BYTES = 16 * 1024 * 1024
+#: Largest magnitude of a number (offset or channel value).  No capture comes
+#: near it (10^12 mm, or degrees); beyond it squares and products overflow.
+MAX_MAGNITUDE = 1e12
 _KNOWN_CHANNELS = set(POSITION_CHANNELS) | set(ROTATION_CHANNELS)
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
@@ -82,29 +85,48 @@ def parse_bvh(data: bytes) -> BvhMotion:
     return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt)
 
 
+def check_header(head: bytes) -> None:
+    """Refuse, from the first ``MAX_HEADER_BYTES + 64`` bytes of a BVH, one
+    whose HIERARCHY does not end within ``MAX_HEADER_BYTES`` (so that a huge
+    file is refused without being read to its end)."""
+    head = head.removeprefix(b"\xef\xbb\xbf")
+    if len(head) > MAX_HEADER_BYTES and not 0 <= _find_motion(head) <= MAX_HEADER_BYTES:
+        raise DataError(f"has no MOTION section in its first {MAX_HEADER_BYTES // 2**20} MiB")
+
+
 def _find_motion(data: bytes) -> int:
     m = re.search(rb"(^|[\r\n])[ \t]*MOTION[ \t]*(\r\n|\r|\n|$)", data[: MAX_HEADER_BYTES + 64])
     return -1 if m is None else m.start() + len(m.group(1))
 
 
+_HEADER_TOKEN = re.compile(r"\r\n|\r|\n|[{}]|[^\s{}]+")
+
+
 def _tokens(header: str):
-    """(token, line number) pairs; braces are tokens even when glued to words."""
-    for lineno, line in enumerate(header.splitlines(), start=1):
-        for tok in line.replace("{", " { ").replace("}", " } ").split():
+    """(token, line number) pairs; braces are tokens even when glued to words.
+
+    Lazy, so that a header of millions of tokens (or 10^5 joints) is refused
+    at the first error or limit without holding them all in memory.
+    """
+    lineno = 1
+    for m in _HEADER_TOKEN.finditer(header):
+        tok = m.group()
+        if tok in ("\r\n", "\r", "\n"):
+            lineno += 1
+        else:
             yield tok, lineno
 
 
 def _parse_hierarchy(header: str) -> Skeleton:
-    toks = list(_tokens(header))
-    lines = header.splitlines()
-    pos = 0
+    stream = _tokens(header)
+    nxt = next(stream, None)  # one token of look-ahead
 
     def take(expect: str | None = None) -> tuple[str, int]:
-        nonlocal pos
-        if pos >= len(toks):
+        nonlocal nxt
+        if nxt is None:
             raise DataError(f"HIERARCHY ends early{f' (expected {expect})' if expect else ''}")
-        tok, ln = toks[pos]
-        pos += 1
+        tok, ln = nxt
+        nxt = next(stream, None)
         if expect is not None and tok.upper() != expect.upper():
             raise DataError(f"line {ln}: expected {expect}, found {tok[:40]!r}")
         return tok, ln
@@ -113,6 +135,8 @@ def _parse_hierarchy(header: str) -> Skeleton:
         tok, ln = take()
         if not _NUMBER.match(tok):
             raise DataError(f"line {ln}: expected a number, found {tok[:40]!r}")
+        if not abs(float(tok)) <= MAX_MAGNITUDE:  # also '1e999', which reads as inf
+            raise DataError(f"line {ln}: {tok[:40]!r} is too large (the limit is {MAX_MAGNITUDE:g})")
         return float(tok)
 
     take("HIERARCHY")
@@ -125,14 +149,12 @@ def _parse_hierarchy(header: str) -> Skeleton:
 
     def joint_name(ln: int) -> str:
         # the name is the rest of the line (names may contain spaces), minus a glued brace
-        nonlocal pos
         parts = []
-        while pos < len(toks) and toks[pos][1] == ln and toks[pos][0] != "{":
-            if toks[pos][0] == "}":
+        while nxt is not None and nxt[1] == ln and nxt[0] != "{":
+            if nxt[0] == "}":
                 # a '}' in a name would be written back as an unbalanced brace
                 raise DataError(f"line {ln}: unexpected '}}' in a joint name")
-            parts.append(toks[pos][0])
-            pos += 1
+            parts.append(take()[0])
         if not parts:
             raise DataError(f"line {ln}: joint without a name")
         return " ".join(parts)
@@ -189,7 +211,7 @@ def _parse_hierarchy(header: str) -> Skeleton:
     limit = sys.getrecursionlimit()
     sys.setrecursionlimit(max(limit, 3 * MAX_JOINTS + 100))
     try:
-        while pos < len(toks):
+        while nxt is not None:
             tok, ln = take()
             if tok.upper() != "ROOT":
                 raise DataError(f"line {ln}: expected ROOT, found {tok[:40]!r}")
@@ -200,7 +222,6 @@ def _parse_hierarchy(header: str) -> Skeleton:
         sys.setrecursionlimit(limit)
     if not names:
         raise DataError("HIERARCHY has no ROOT joint")
-    del lines
     return Skeleton(
         names=tuple(names),
         parents=np.array(parents, dtype=int),
@@ -258,6 +279,8 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
         if len(tokens) != n_frames * n_channels:
             _explain_count(text, n_frames, n_channels, first_line + 4)
         try:
+            if "_" in text:  # Python's float() reads '1_000'; no BVH reader does
+                raise ValueError
             values = np.array(tokens, dtype=float).reshape(n_frames, n_channels)
         except ValueError:
             _explain_values(text, first_line + 4)
@@ -265,6 +288,11 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
     if not np.all(np.isfinite(values)):
         bad = int(np.flatnonzero(~np.isfinite(values.ravel()))[0])
         raise DataError(f"frame {bad // n_channels}: a value is not a finite number ({values.ravel()[bad]})")
+    if values.size and np.abs(values).max() > MAX_MAGNITUDE:
+        bad = int(np.argmax(np.abs(values.ravel()) > MAX_MAGNITUDE))
+        raise DataError(
+            f"frame {bad // n_channels}: value {values.ravel()[bad]:g} is too large (the limit is {MAX_MAGNITUDE:g})"
+        )
     head = text[:200_000]
     sample = head.split() if len(text) <= len(head) else head.rsplit(None, 1)[0].split()
     fmt = _number_format(sample, values.ravel())
@@ -279,6 +307,8 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
 def _fast_values(text: str, n_frames: int, n_channels: int) -> np.ndarray | None:
     """The MOTION block as (frames, channels) with numpy's C parser, or None
     when it does not parse as one frame per line (then the slow path explains)."""
+    if "_" in text:  # loadtxt, like float(), reads '1_000'
+        return None
     try:
         values = np.loadtxt(io.StringIO(text), dtype=float, ndmin=2, comments=None)
     except ValueError:

@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import DataError
 from ..motion import MarkerMotion
 
-__all__ = ["read_c3d", "write_c3d", "c3d_bytes"]
+__all__ = ["read_c3d", "write_c3d", "c3d_bytes", "check_c3d"]
 
 _BLOCK = 512
 _KEY_BYTE = 0x50  # second byte of every C3D file
@@ -46,6 +46,9 @@ _PROCESSORS = {84: "intel", 85: "dec", 86: "mips"}
 _INTEL = 84
 #: More frames than any capture system records (10^8 frames = 9 days at 120 Hz).
 MAX_FRAMES = 10**8
+#: Largest magnitude of a coordinate, file units (the BVH reader's limit):
+#: a sample beyond it is read as missing.
+MAX_MAGNITUDE = 1e12
 #: Most frames ezc3d 1.7.2 can write so that they read back (16-bit counts).
 MAX_WRITE_FRAMES = 65535
 #: C3D stores the dimensions of a parameter in bytes: at most 255 labels per
@@ -124,8 +127,11 @@ def read_c3d(
 
     points = np.ascontiguousarray(ez_points[:3, :, :n_frames].transpose(2, 1, 0), dtype=np.float64)
     # ezc3d already sets NaN where the residual is negative; a coordinate that
-    # is not finite in a sample marked valid can only mean missing as well
-    missing = (residuals[0, :, :n_frames].T < 0) | ~np.isfinite(points).all(axis=-1)
+    # is not finite (or beyond any capture volume, where the math overflows)
+    # in a sample marked valid can only mean missing as well
+    with np.errstate(invalid="ignore"):
+        wild = ~(np.abs(points) <= MAX_MAGNITUDE).all(axis=-1)
+    missing = (residuals[0, :, :n_frames].T < 0) | wild
     points[missing] = np.nan
 
     labels = [_text(label) for label in _point_labels(parameters)]
@@ -144,6 +150,13 @@ def read_c3d(
         units=_text(str(units[0])).strip(),
         source=raw,
     )
+
+
+def check_c3d(raw: bytes, source: str) -> None:
+    """Raise ``DataError`` (naming ``source``) unless ``raw`` is a C3D whose
+    header, parameter section and data block are consistent; cheap, without
+    ezc3d (what :func:`read_c3d` checks before handing the file to it)."""
+    _check_layout(raw, source)
 
 
 @dataclass(frozen=True)
@@ -380,7 +393,8 @@ def _read_sizing_parameters(
         body = next_at + 2
 
         def bad(why: str, at: int = pos, label: str = name) -> DataError:
-            return DataError(f"corrupt C3D: parameter record {label!r} at byte {at} {why}", source)
+            # a corrupt name length makes the "name" run on through the section
+            return DataError(f"corrupt C3D: parameter record {label[:40]!r} at byte {at} {why}", source)
 
         if record_end > end:
             raise bad("points past the end of file")
@@ -417,7 +431,9 @@ def _read_sizing_parameters(
     counts: dict[str, int] = {}
     for gid, name, ptype, count, first in records:
         if gid not in group_names:
-            raise DataError(f"corrupt C3D: parameter {name!r} belongs to group {gid}, which does not exist", source)
+            raise DataError(
+                f"corrupt C3D: parameter {name[:40]!r} belongs to group {gid}, which does not exist", source
+            )
         key = (group_names[gid], name)
         counts[f"{key[0]}:{key[1]}"] = count
         if key not in _SIZING_PARAMETERS or count == 0:

@@ -62,6 +62,12 @@ MAX_TOTAL_BYTES = 4 << 30
 MAX_MANIFEST_BYTES = 64 << 20
 #: Most arrays (zip members) in one document.
 MAX_ARRAYS = 10_000
+#: Deflated members may inflate to at most this many times their compressed
+#: size in total, plus :data:`INFLATE_ALLOWANCE` bytes (arrays of floats
+#: deflate less than 2:1, a zip bomb over 1000:1), so that what reading
+#: allocates follows the size of the file.
+MAX_INFLATE_RATIO = 20
+INFLATE_ALLOWANCE = 16 << 20
 #: Most dimensions of one array.
 MAX_NDIM = 32
 
@@ -391,9 +397,20 @@ def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
                 raise _fail(
                     name, f"member {info.filename!r} declares {info.file_size:,} bytes, over the limit of {limit:,}"
                 )
+            if info.compress_size > len(data) or (
+                info.compress_type == zipfile.ZIP_STORED and info.compress_size != info.file_size
+            ):
+                raise _fail(name, f"corrupt NPZ document (member {info.filename!r} declares sizes the file lacks)")
             total += info.file_size
             if total > MAX_TOTAL_BYTES:
                 raise _fail(name, f"members total more than the limit of {MAX_TOTAL_BYTES:,} bytes")
+        compressed = sum(info.compress_size for info in infos)
+        if total > MAX_INFLATE_RATIO * compressed + INFLATE_ALLOWANCE:
+            raise _fail(
+                name,
+                f"members inflate to {total:,} bytes from {compressed:,} (over {MAX_INFLATE_RATIO}:1): "
+                "refusing a zip bomb",
+            )
         if MANIFEST_MEMBER not in seen:
             raise _fail(name, f"not a {FORMAT_NAME} document (no {MANIFEST_MEMBER})")
         try:

@@ -34,8 +34,9 @@ def _too_big(size: int, limit: int) -> str:
     return f"input is {size:,} bytes, more than the limit of {limit:,} bytes"
 
 
-def _read_stream(stream, limit: int, name: str) -> bytes:
-    """Read ``stream`` to its end, refusing more than ``limit`` bytes."""
+def _read_stream(stream, limit: int, name: str, probe=None, probe_bytes: int = 0) -> bytes:
+    """Read ``stream`` to its end, refusing more than ``limit`` bytes; call
+    ``probe(head)`` once the first ``probe_bytes`` bytes are in."""
     chunks: list[bytes] = []
     total = 0
     while True:
@@ -46,6 +47,13 @@ def _read_stream(stream, limit: int, name: str) -> bytes:
         total += len(chunk)
         if total > limit:
             raise DataError(f"input is more than the limit of {limit:,} bytes", source=name)
+        if probe is not None and total >= probe_bytes:
+            chunks = [b"".join(chunks)]
+            try:
+                probe(chunks[0])
+            except StaggeredError as err:
+                raise err.with_source(name) from None
+            probe = None
     return b"".join(chunks)
 
 
@@ -61,7 +69,7 @@ def _os_reason(err: OSError) -> str:
     return err.strerror or type(err).__name__
 
 
-def read_bytes(path: str, limit: int = MAX_INPUT_BYTES) -> tuple[bytes, str]:
+def read_bytes(path: str, limit: int = MAX_INPUT_BYTES, probe=None, probe_bytes: int = 0) -> tuple[bytes, str]:
     """The whole content of ``path`` and the name to show for it.
 
     Parameters
@@ -72,6 +80,11 @@ def read_bytes(path: str, limit: int = MAX_INPUT_BYTES) -> tuple[bytes, str]:
         Largest size accepted, in bytes.  A regular file larger than this is
         refused before anything is read; a stream is refused as soon as it
         passes it.
+    probe : callable, optional
+        ``probe(head)`` is called once with the first ``probe_bytes`` bytes
+        of an input longer than that, before the rest is read: it may raise
+        a ``StaggeredError`` to refuse the input without reading it all (a
+        BVH header longer than any real one, say).
 
     Raises
     ------
@@ -87,7 +100,7 @@ def read_bytes(path: str, limit: int = MAX_INPUT_BYTES) -> tuple[bytes, str]:
             raise UsageError("no standard input to read from", source=name)
         if stdin.isatty():
             raise UsageError("standard input is a terminal: pipe data in or give a FILE", source=name)
-        return _read_stream(getattr(stdin, "buffer", stdin), limit, name), name
+        return _read_stream(getattr(stdin, "buffer", stdin), limit, name, probe, probe_bytes), name
     try:
         st = os.stat(path)
         if stat.S_ISDIR(st.st_mode):
@@ -96,7 +109,7 @@ def read_bytes(path: str, limit: int = MAX_INPUT_BYTES) -> tuple[bytes, str]:
             raise DataError(_too_big(st.st_size, limit), source=name)
         with open(path, "rb") as f:
             # not only regular files: FIFOs and process substitution too
-            return _read_stream(f, limit, name), name
+            return _read_stream(f, limit, name, probe, probe_bytes), name
     except OSError as err:
         raise DataError(f"cannot read: {_os_reason(err)}", source=name) from err
 

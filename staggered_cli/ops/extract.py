@@ -233,6 +233,13 @@ def extract(
     }
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
     return from_motion(
-        motion, pose_t, refine, priority=priority, source_name=source_name, source_bytes=source_bytes,
-        constraints=constraints, signals=sigs, parameters=parameters,
+        motion,
+        pose_t,
+        refine,
+        priority=priority,
+        source_name=source_name,
+        source_bytes=source_bytes,
+        constraints=constraints,
+        signals=sigs,
+        parameters=parameters,
     )
