@@ -12,6 +12,7 @@ leaks past them.  Control variables (SPEC section 2) are derived here:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -63,21 +64,43 @@ class BvhMotion:
             c += len(ch)
         return out
 
+    # Derived arrays are computed once per clip (extract and bake each need
+    # them several times) and handed out read-only, since they are shared.
+    @cached_property
+    def _local(self) -> tuple[np.ndarray, np.ndarray]:
+        return _frozen(local_rotations_from_channels(self.skeleton, self.channels)), _frozen(
+            local_translations_from_channels(self.skeleton, self.channels)
+        )
+
+    @cached_property
+    def _world(self) -> tuple[np.ndarray, np.ndarray]:
+        wr, wp = forward_kinematics(self.skeleton, *self._local)
+        return _frozen(wr), _frozen(wp)
+
     def local_rotations(self) -> np.ndarray:
-        """(T, J, 4) local rotations, w first, each joint's track unrolled."""
-        return local_rotations_from_channels(self.skeleton, self.channels)
+        """(T, J, 4) local rotations, w first, each joint's track unrolled (read-only)."""
+        return self._local[0]
 
     def local_translations(self) -> np.ndarray:
-        """(T, J, 3) local translations: position channels where present, else offsets."""
-        return local_translations_from_channels(self.skeleton, self.channels)
+        """(T, J, 3) local translations: position channels where present, else offsets (read-only)."""
+        return self._local[1]
 
     def world(self) -> tuple[np.ndarray, np.ndarray]:
-        """World rotations (T, J, 4) and positions (T, J, 3)."""
-        return forward_kinematics(self.skeleton, self.local_rotations(), self.local_translations())
+        """World rotations (T, J, 4) and positions (T, J, 3) (read-only)."""
+        return self._world
+
+    @cached_property
+    def _figure_height(self) -> float:
+        wr, wp = self._world
+        return figure_height(self.skeleton, wp, end_site_positions(self.skeleton, wr, wp))
 
     def figure_height(self) -> float:
-        wr, wp = self.world()
-        return figure_height(self.skeleton, wp, end_site_positions(self.skeleton, wr, wp))
+        return self._figure_height
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 @dataclass(frozen=True)

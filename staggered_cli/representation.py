@@ -40,6 +40,9 @@ _AT_KNOT = 1e-9  # seconds: a sample this close to a knot is the knot
 #: stays exact): a cubic has four controls, and at 120 Hz most segments hold
 #: 15-30 frames that add fitting time, not information.
 FIT_SAMPLES = 12
+#: Levenberg-Marquardt steps at most per segment: past 15 the mean fit error
+#: of cmu_01_01 and the Bandai dance changes in the fourth decimal of a degree.
+FIT_ITERATIONS = 15
 
 
 @dataclass(frozen=True)
@@ -285,7 +288,9 @@ def fit_track(
     else:
         v_a = quat.normalize(v_a)
         pick = _evenly_within_segments(gseg_a, FIT_SAMPLES)
-        a, b = splines.fit_rotation_tangents(p0, p3, gseg_a[pick], u_a[pick], v_a[pick], n_seg)
+        a, b = splines.fit_rotation_tangents(
+            p0, p3, gseg_a[pick], u_a[pick], v_a[pick], n_seg, iterations=FIT_ITERATIONS
+        )
         s_val = splines.rotation_eval_at(p0, a, b, p3, gseg_a, u_a)
         disp = quat.hemisphere(quat.mul(quat.conj(s_val), v_a), quat.identity((1,)))
     samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner_a, minlength=V))]).astype(int)
