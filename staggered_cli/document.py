@@ -37,11 +37,33 @@ FORMAT_VERSION = 1
 @dataclass(frozen=True)
 class Constraint:
     """A contact: ``joint`` (joint name or marker label) is planted from
-    ``start`` to ``end`` seconds (inclusive)."""
+    ``start`` to ``end`` seconds (inclusive).
+
+    ``source_start`` and ``source_end`` are the same span in the source's
+    time (None: the same as ``start`` and ``end``).  Timing edits move a
+    constraint with the motion; the contact layer then follows the
+    captured path of its source span, stretched onto the new one.
+    """
 
     joint: str
     start: float
     end: float
+    source_start: float | None = None
+    source_end: float | None = None
+
+    @property
+    def source_span(self) -> tuple[float, float]:
+        s = self.start if self.source_start is None else self.source_start
+        e = self.end if self.source_end is None else self.source_end
+        return float(s), float(e)
+
+    def warped(self, old_t: np.ndarray, new_t: np.ndarray) -> Constraint:
+        """The constraint moved by the piecewise-linear time map ``old_t -> new_t``."""
+        s0, s1 = self.source_span
+        start, end = (float(x) for x in np.interp([self.start, self.end], old_t, new_t))
+        if (start, end) == (self.start, self.end):
+            return self
+        return Constraint(self.joint, start, end, s0, s1)
 
 
 @dataclass(frozen=True)
@@ -236,14 +258,22 @@ def from_motion(
 # --- back to dense motion ------------------------------------------------------
 
 
+def same_rate(doc: Document, fps: float | None) -> bool:
+    """Whether ``fps`` is the source's own rate (its nominal rate, e.g. 120
+    for a written frame time of .0083333, or exactly its frame time)."""
+    if fps is None:
+        return True
+    return abs(fps - doc.source.rate) <= 1e-6 * fps or abs(fps * doc.frame_time - 1.0) < 1e-9
+
+
 def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
     """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
-    if fps is None:
-        return doc.frame_times
-    if not np.isfinite(fps) or fps <= 0:
+    if fps is not None and (not np.isfinite(fps) or fps <= 0):
         raise UsageError(f"--fps must be a positive number, got {fps}")
-    n = int(np.floor(doc.duration * fps + 1e-6)) + 1
-    return np.arange(n) / fps
+    if same_rate(doc, fps):
+        return doc.frame_times
+    n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
+    return np.minimum(np.arange(n) / fps, doc.duration)
 
 
 def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.ndarray, np.ndarray]:
@@ -276,12 +306,17 @@ def marker_points(doc: Document, t: np.ndarray, layers: str = "all") -> np.ndarr
 
 def reference_channels(doc: Document, t: np.ndarray) -> np.ndarray:
     """BVH channel values of the source at times ``t`` (exact on source frames,
-    linear between them): the reference for choosing Euler triples."""
+    linear between them, rotation channels unwrapped first so that a wrap
+    from 179 to -179 degrees does not interpolate through 0): the reference
+    for choosing Euler triples."""
     src = doc.source
     assert isinstance(src, BvhMotion)
     ch = src.channels
     if len(t) == src.n_frames and np.allclose(t, doc.frame_times, atol=1e-9, rtol=0):
         return ch
+    rot_cols = [c for _, cols, _ in rotation_columns(src.skeleton) for c in cols]
+    ch = ch.copy()
+    ch[:, rot_cols] = np.unwrap(ch[:, rot_cols], period=360.0, axis=0)
     f = np.clip(np.asarray(t) / doc.frame_time, 0, src.n_frames - 1)
     lo = np.floor(f).astype(int)
     hi = np.minimum(lo + 1, src.n_frames - 1)
@@ -321,6 +356,13 @@ _TRACK_ARRAYS = (
 )
 
 
+def _constraint_entry(c: Constraint) -> dict:
+    entry = {"joint": c.joint, "start": float(c.start), "end": float(c.end)}
+    if c.source_span != (float(c.start), float(c.end)):
+        entry["source_start"], entry["source_end"] = c.source_span
+    return entry
+
+
 def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
     """The stored form of a document: a JSON-able manifest and numeric arrays."""
     arrays: dict[str, np.ndarray] = {"pose_t": doc.pose_t, "priority": doc.priority}
@@ -338,7 +380,7 @@ def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
         "frame_time": doc.frame_time,
         "frames": doc.n_frames,
         "tracks": tracks,
-        "constraints": [{"joint": c.joint, "start": float(c.start), "end": float(c.end)} for c in doc.constraints],
+        "constraints": [_constraint_entry(c) for c in doc.constraints],
         "parameters": doc.parameters,
     }
     src = doc.source
@@ -398,7 +440,14 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         kind = src_info["kind"]
         track_info = manifest["tracks"]
         constraints = tuple(
-            Constraint(str(c["joint"]), float(c["start"]), float(c["end"])) for c in manifest.get("constraints", [])
+            Constraint(
+                str(c["joint"]),
+                float(c["start"]),
+                float(c["end"]),
+                None if c.get("source_start") is None else float(c["source_start"]),
+                None if c.get("source_end") is None else float(c["source_end"]),
+            )
+            for c in manifest.get("constraints", [])
         )
         parameters = manifest.get("parameters", {})
     except (KeyError, TypeError, ValueError) as exc:
@@ -521,6 +570,11 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             bool(np.isfinite(c.start) and np.isfinite(c.end))
             and -half_frame <= c.start <= c.end <= duration + half_frame,
             f"constraint on {c.joint[:40]!r} from {c.start:g} to {c.end:g} s is not within the clip",
+        )
+        s0, s1 = c.source_span
+        need(
+            bool(np.isfinite(s0) and np.isfinite(s1)) and -half_frame <= s0 <= s1 <= duration + half_frame,
+            f"constraint on {c.joint[:40]!r}: its source span {s0:g} to {s1:g} s is not within the clip",
         )
     signals = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("signal.")}
     if isinstance(parameters, dict):  # what `constraints --detect` reuses must be usable

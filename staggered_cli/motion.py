@@ -218,19 +218,46 @@ def channels_from_local(
     for j, cols, order in rotation_columns(skeleton):
         if len(order) == 3:
             out[:, cols] = quat.to_euler(rotations[:, j], order, reference[:, cols])
+        elif len(order) == 2:
+            out[:, cols] = _two_axis_angles(rotations[:, j], order, reference[:, cols])
         else:
-            # fewer than three rotation channels: only exact for rotations
-            # about those axes; take the angle about the single axis
-            if len(order) == 1:
-                ax = "XYZ".index(order[0])
-                r = quat.log(rotations[:, j])[:, ax]
-                ang = np.degrees(r)
-                out[:, cols[0]] = ang + 360.0 * np.round((reference[:, cols[0]] - ang) / 360.0)
-            else:
-                full = quat.to_euler(rotations[:, j], order + ("XYZ".replace(order[0], "").replace(order[1], "")))
-                out[:, cols] = full[:, :2]
+            # one channel: the angle about that axis (exact for rotations
+            # about it; any other part is dropped), wrapped by whole turns
+            # to the reference
+            q = rotations[:, j]
+            ax = 1 + "XYZ".index(order)
+            ang = np.degrees(2.0 * np.arctan2(q[:, ax], q[:, 0]))
+            out[:, cols[0]] = ang + 360.0 * np.round((reference[:, cols[0]] - ang) / 360.0)
     for j, cols in position_columns(skeleton):
         for axis, col in enumerate(cols):
             if col >= 0:
                 out[:, col] = translations[:, j, axis]
     return out
+
+
+def _two_axis_angles(q: np.ndarray, order: str, reference: np.ndarray) -> np.ndarray:
+    """Angles (T, 2) in degrees of ``R = R_A(a) R_B(b)`` for a two-channel
+    joint of Euler order ``order = A+B``, each nearest ``reference`` by whole turns.
+
+    A rotation stored in two channels is ``R_A(a) R_B(b) R_C(0)`` (C the
+    remaining axis): of the Euler triples of order A+B+C it is the one whose
+    third angle is 0, which is unique up to whole turns of ``a`` and ``b``,
+    also where ``b`` is beyond +-90 (the principal triple would then carry a
+    c of 180 that cannot be written) and at ``b = +-90`` (where a three-angle
+    decomposition only knows ``a +- c``).  It is solved for directly: ``a``
+    maximizes ``|<q, q_A(a) q_B(b)>|`` over ``b`` (the principal direction of
+    a 2x2 form, exact for rotations about A and B and the nearest such
+    rotation otherwise, e.g. after an edit), then ``b`` is the angle about B
+    of ``q_A(a)^-1 q``.
+    """
+    A, B = ("XYZ".index(c) for c in order)
+    s = 1.0 if (B - A) % 3 == 1 else -1.0  # e_A x e_B = s e_C
+    C = 3 - A - B
+    w, qa, qb, qc = q[:, 0], q[:, 1 + A], q[:, 1 + B], s * q[:, 1 + C]
+    # q = (ca cb, sa cb e_A + ca sb e_B + sa sb s e_C) for half angles of a, b:
+    # (w, qa) = cb (ca, sa) and (qb, qc) = sb (ca, sa)
+    a = np.arctan2(2.0 * (w * qa + qb * qc), w * w + qb * qb - qa * qa - qc * qc)
+    rest = quat.mul(quat.conj(quat.from_axis_angle(order[0], a)), q)
+    b = 2.0 * np.arctan2(rest[:, 1 + B], rest[:, 0])
+    ang = np.degrees(np.stack([a, b], axis=1))
+    return ang + 360.0 * np.round((reference - ang) / 360.0)

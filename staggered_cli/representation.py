@@ -482,18 +482,22 @@ def restructure(
     knot_v: np.ndarray,
     knot_pose: np.ndarray,
     knot_editing: np.ndarray,
+    *,
+    frame_t: np.ndarray | None = None,
 ) -> Track:
     """Refit ``track`` to new knots, keeping the motion it has now.
 
     The displacement maps are measured again from the motion as it was
-    (SPEC invariant 2), sampled at the current sample times plus the old knot
-    times, so the motion at every source frame is unchanged.
+    (SPEC invariant 2), sampled at the source frame times ``frame_t`` (where
+    the motion is baked, so it stays exact there even after a retiming moved
+    the old samples between frames) plus the old knot times; without
+    ``frame_t``, at the current sample times.
     """
     check_knot_order(knot_ptr, knot_t, track.names)
     samples_t, var_idx = [], []
     for i in range(track.n_vars):
-        st = np.concatenate([sample_times(track, i), track.knot_t[track.knots(i)]])
-        st = np.unique(st)
+        base = sample_times(track, i) if frame_t is None else np.asarray(frame_t, dtype=float)
+        st = np.unique(np.concatenate([base, track.knot_t[track.knots(i)]]))
         samples_t.append(st)
         var_idx.append(np.full(len(st), i))
     flat_t = np.concatenate(samples_t) if samples_t else np.zeros(0)
@@ -502,7 +506,16 @@ def restructure(
     bounds = np.concatenate([[0], np.cumsum([len(x) for x in samples_t])])
     samples_v = [values[bounds[i] : bounds[i + 1]] for i in range(track.n_vars)]
     return fit_track(
-        track.kind, track.names, track.targets, knot_ptr, knot_t, knot_v, knot_pose, knot_editing, samples_t, samples_v
+        track.kind,
+        track.names,
+        track.targets,
+        knot_ptr,
+        knot_t,
+        knot_v,
+        knot_pose,
+        knot_editing,
+        samples_t,
+        samples_v,
     )
 
 

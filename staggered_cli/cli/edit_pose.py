@@ -32,7 +32,9 @@ from .options import force_option, format_option, input_argument, output_option
     help="Translate a joint with position channels (or a marker), file units.",
 )
 @click.option(
-    "--exaggerate", metavar="W", help="Scale the pose's difference from a reference pose by W (1 = unchanged)."
+    "--exaggerate",
+    metavar="W",
+    help="Scale the pose's difference from a reference pose by W (1 = unchanged; BVH: rotations only unless --joints).",
 )
 @click.option(
     "--relative-to",
@@ -93,7 +95,7 @@ def edit_pose(
         from .options import load_input
 
         other = load_input(from_bvh)
-        values = ops.values_from_motion(doc, other, frame)
+        values = ops.values_from_motion(doc, other, frame, name_list(joints), subtree)
     doc = ops.edit_pose(
         doc,
         k,

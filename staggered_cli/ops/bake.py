@@ -16,18 +16,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..document import Document, local_pose, marker_points, output_times, reference_channels
+from ..document import same_rate as is_same_rate
 from ..errors import UsageError
 from ..motion import (
     BvhMotion,
     MarkerMotion,
     channels_from_local,
-    local_rotations_from_channels,
-    local_translations_from_channels,
 )
 from ..skeleton import end_site_positions, figure_height, forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
+_RESAMPLED = 1e-3  # of figure height, when baking at another rate
 
 
 def bake(
@@ -47,7 +47,7 @@ def bake(
     if not np.isfinite(ik_blend) or ik_blend < 0:
         raise UsageError(f"--ik-blend must be a non-negative number of seconds, got {ik_blend}")
     t = output_times(doc, fps)
-    same_rate = fps is None or abs(fps * doc.frame_time - 1.0) < 1e-9
+    same_rate = is_same_rate(doc, fps)
     frame_time = doc.frame_time if same_rate else 1.0 / fps
     if doc.kind == "bvh":
         src = doc.source
@@ -73,19 +73,40 @@ def _frame_time_text(ft: float) -> str:
     return f"{ft:.7f}".rstrip("0")
 
 
-def _disturbed(
-    pos: np.ndarray, source_pos: np.ndarray, t: np.ndarray, c, blend: float, size: float, exact: bool = True
-) -> bool:
-    """Whether the edits moved a constrained point away from the source over
-    the constraint and its blend windows (always, when resampling)."""
-    if not exact:
-        return True
+def _source_path(points: np.ndarray, frame_time: float, c, t: np.ndarray) -> np.ndarray:
+    """Where a constrained point was in the source (T', 3) at output times ``t``.
+
+    Inside the constraint, its source span is stretched onto its current
+    span (timing edits move constraints); before and after, the source is
+    shifted by the same amount as the nearer end.  Linear between source
+    frames (NaN where a neighbouring frame is a gap).
+    """
+    s0, s1 = c.source_span
+    span = c.end - c.start
+    inside = s0 + (t - c.start) * ((s1 - s0) / span if span > 0 else 0.0)
+    s = np.where(t < c.start, t + (s0 - c.start), np.where(t > c.end, t + (s1 - c.end), inside))
+    f = np.clip(s / frame_time, 0, len(points) - 1)
+    lo = np.floor(f).astype(int)
+    hi = np.minimum(lo + 1, len(points) - 1)
+    w = (f - lo)[:, None]
+    return points[lo] * (1.0 - w) + points[hi] * w
+
+
+def _disturbed(pos: np.ndarray, path: np.ndarray, t: np.ndarray, c, blend: float, tolerance: float) -> bool:
+    """Whether the edits moved a constrained point off its source path over
+    the constraint and its blend windows."""
     window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
     if not window.any():
         return False
     with np.errstate(invalid="ignore"):
-        d = np.linalg.norm(pos[window] - source_pos[window], axis=-1)
-    return bool(np.nanmax(d) > _UNDISTURBED * size) if np.isfinite(d).any() else False
+        d = np.linalg.norm(pos[window] - path[window], axis=-1)
+    return bool(np.nanmax(d) > tolerance) if np.isfinite(d).any() else False
+
+
+def _tolerance(size: float, same_rate: bool) -> float:
+    # resampled output differs from the source by interpolation alone, which a
+    # planted point (nearly still) keeps far below a thousandth of the figure
+    return (_UNDISTURBED if same_rate else _RESAMPLED) * size
 
 
 def _contact_layer(
@@ -95,25 +116,20 @@ def _contact_layer(
     src = doc.source
     sk = src.skeleton
     _, wp = forward_kinematics(sk, rot, tr)
-    src_rot = local_rotations_from_channels(sk, src.channels)
-    src_wr, src_wp = forward_kinematics(sk, src_rot, local_translations_from_channels(sk, src.channels))
-    size = figure_height(sk, src_wp, end_site_positions(sk, src_wr, src_wp))  # one FK pass serves both
-    if not same_rate:  # the source's positions at the output times
-        f = np.clip(t / doc.frame_time, 0, doc.n_frames - 1)
-        lo = np.floor(f).astype(int)
-        hi = np.minimum(lo + 1, doc.n_frames - 1)
-        src_wp = src_wp[lo] + (src_wp[hi] - src_wp[lo]) * (f - lo)[:, None, None]
+    src_wr, src_wp = src.world()
+    size = figure_height(sk, src_wp, end_site_positions(sk, src_wr, src_wp))
     todo, targets = [], []
     for c in doc.constraints:
         if c.joint not in sk.names:
             raise UsageError(f"constraint on unknown joint {c.joint!r}")
         j = sk.names.index(c.joint)
-        if not _disturbed(wp[:, j], src_wp[:, j], t, c, blend, size, exact=same_rate):
+        path = _source_path(src_wp[:, j], doc.frame_time, c, t)
+        if not _disturbed(wp[:, j], path, t, c, blend, _tolerance(size, same_rate)):
             continue
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
-        offset = (wp[inside, j] - src_wp[inside, j]).mean(axis=0) if inside.any() else np.zeros(3)
+        offset = (wp[inside, j] - path[inside]).mean(axis=0) if inside.any() else np.zeros(3)
         todo.append(c)
-        targets.append(src_wp[:, j] + offset)
+        targets.append(path + offset)
     if not todo:
         return rot
     from ..ik import ik_layer
@@ -138,24 +154,20 @@ def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
     the edit's mean offset over the constraint, blended in and out (markers
     have no chain to solve)."""
     src = doc.source
-    size = src.figure_height()
-    ref_all = src.points
-    if not same_rate:
-        f = np.clip(np.rint(t / doc.frame_time).astype(int), 0, doc.n_frames - 1)
-        ref_all = ref_all[f]
+    tolerance = _tolerance(src.figure_height(), same_rate)
     out = pts.copy()
     for c in doc.constraints:
         if c.joint not in src.labels:
             raise UsageError(f"constraint on unknown marker {c.joint!r}")
         m = src.labels.index(c.joint)
-        ref = ref_all[:, m]
-        if not _disturbed(pts[:, m], ref, t, c, blend, size, exact=same_rate):
+        path = _source_path(src.points[:, m], doc.frame_time, c, t)
+        if not _disturbed(pts[:, m], path, t, c, blend, tolerance):
             continue
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
-        seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(ref), axis=1)
+        seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(path), axis=1)
         if not seen.any():
             continue
-        target = ref + (pts[seen, m] - ref[seen]).mean(axis=0)
+        target = path + (pts[seen, m] - path[seen]).mean(axis=0)
         w = _smooth_weight(t, c.start, c.end, blend)[:, None]
         # in the blend windows the correction fades from its value at the boundary
         i0, i1 = np.flatnonzero(seen)[[0, -1]]

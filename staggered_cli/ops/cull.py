@@ -46,7 +46,7 @@ def choose(
         mask &= _top(doc, keep)
     if interval is not None:
         a, b = interval
-        if not (np.isfinite(a) and np.isfinite(b)) or a > b:
+        if np.isnan(a) or np.isnan(b) or a > b:
             raise UsageError(f"--interval must be A:B with A <= B seconds, got {a}:{b}")
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if select is not None:
@@ -87,7 +87,7 @@ def _top(doc: Document, keep: str) -> np.ndarray:
 
 def keep_poses(doc: Document, mask: np.ndarray) -> Document:
     """The document with only the poses in ``mask`` (K,), motion unchanged."""
-    mask = np.asarray(mask, dtype=bool)
+    mask = np.array(mask, dtype=bool)  # a copy: the caller's mask stays as it was
     mask[0] = mask[-1] = True
     if mask.all():
         return doc
@@ -97,7 +97,8 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
         k = mask[tr.knot_pose]
         var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
         ptr = np.concatenate([[0], np.cumsum(np.bincount(var[k], minlength=tr.n_vars))])
-        tracks.append(restructure(tr, ptr, tr.knot_t[k], tr.knot_v[k], new_index[tr.knot_pose[k]], tr.knot_editing[k]))
+        knots = (ptr, tr.knot_t[k], tr.knot_v[k], new_index[tr.knot_pose[k]], tr.knot_editing[k])
+        tracks.append(restructure(tr, *knots, frame_t=doc.frame_times))
     signals = dict(doc.signals)
     return doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
 
@@ -129,7 +130,17 @@ def add_pose(doc: Document, time: float) -> Document:
         knot_editing = np.insert(tr.knot_editing, ins, False)
         ptr = tr.knot_ptr + np.arange(tr.n_vars + 1)
         del var
-        tracks.append(restructure(tr, ptr, knot_t, knot_v, knot_pose, knot_editing))
+        for i in range(tr.n_vars):
+            # a pose's knots must stay together: not between another pose's editing and extreme knot
+            p = knot_pose[ptr[i] : ptr[i + 1]]
+            if np.any(np.diff(p) < 0):
+                other = k_new - 1 if k_new > 0 and np.any(p == k_new - 1) else k_new + 1
+                lo, hi = tr.knot_t[tr.knots(i)][np.isin(tr.knot_pose[tr.knots(i)], [other - (other > k_new)])][[0, -1]]
+                raise KnotOrderError(
+                    f"--add-time {time:.4f} s falls inside the staggered span of {tr.names[i]!r} around pose "
+                    f"{other - (other > k_new)} ({lo:.4f} to {hi:.4f} s); choose a time outside it"
+                )
+        tracks.append(restructure(tr, ptr, knot_t, knot_v, knot_pose, knot_editing, frame_t=doc.frame_times))
     pose_t = np.insert(doc.pose_t, k_new, time)
     priority = np.insert(doc.priority, k_new, 0.0)
     return doc.with_tracks(tuple(tracks), pose_t=pose_t, priority=priority)

@@ -134,6 +134,22 @@ def joint_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[n
     return [np.isin(tr.targets, chosen) for tr in doc.tracks]
 
 
+def exaggeration_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[np.ndarray]:
+    """Per track, a (V,) mask of the variables ``--exaggerate`` scales.
+
+    Exaggeration changes a pose's shape, not its place: in a BVH document
+    only rotations are scaled (scaling the root translation's difference
+    from the clip's mean would move the character across the room), unless
+    ``joints`` names joints explicitly, in which case every variable of the
+    chosen joints is, translations included.  In a C3D document every marker
+    (a translation) is scaled, within ``joints`` when given.
+    """
+    mask = joint_mask(doc, joints, subtree)
+    if doc.kind != "bvh" or joints:
+        return mask
+    return [m & (tr.kind == ROTATION) for tr, m in zip(doc.tracks, mask, strict=True)]
+
+
 def edit_pose(
     doc: Document,
     k: int,
@@ -154,9 +170,13 @@ def edit_pose(
     on : ``'true'`` (the pose at t_k) or ``'extreme'`` (the non-staggered pose).
     rotate, translate : per-joint offsets (see :func:`offsets`).
     exaggerate : weight W: each value becomes ``v_ref ⊕ W·(v ⊖ v_ref)``
-        (W = 1 is the identity, 2 doubles the difference, 0.5 halves it),
-        relative to ``relative_to``: ``'prev'``, ``'next'``, ``'average'``
-        (the mean pose of the source clip) or a pose index.
+        (W = 1 is the identity, 2 doubles the difference, 0.5 halves it; the
+        paper's ``v ⊕ w_r(v ⊖ v_ref)`` with ``w_r = W - 1``), relative to
+        ``relative_to``: ``'prev'``, ``'next'``, ``'average'`` (the mean pose
+        of the source clip) or a pose index.  In a BVH document only the
+        rotations are scaled unless ``joints`` is given (see
+        :func:`exaggeration_mask`).  A rotation's scaled difference wraps
+        past a half turn, so W then 1/W restores differences under 180°/max(W, 1).
     values : per track (V, D) target values (e.g. from another BVH), applied
         where ``joints`` allows.
     joints, subtree : restrict exaggeration and ``values`` to part of the body.
@@ -173,7 +193,7 @@ def edit_pose(
             raise UsageError("--exaggerate must be a finite number")
         ref = reference_values(doc, k, relative_to, on)
         cur = pose_values(doc, k, on)
-        mask = joint_mask(doc, joints, subtree)
+        mask = exaggeration_mask(doc, joints, subtree)
         deltas = []
         for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
             target = _oplus(tr.kind, r, _scale(tr.kind, _ominus(tr.kind, c, r), exaggerate))
@@ -216,33 +236,50 @@ def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[n
     return pose_values(doc, r, on)
 
 
-def values_from_motion(doc: Document, motion, frame: int) -> list[np.ndarray]:
-    """Per track (V, D) values of frame ``frame`` of another BVH with the
-    same skeleton, matched by joint name."""
-    from ..document import dense_variables
+def values_from_motion(
+    doc: Document, motion, frame: int, joints: list[str] | None = None, subtree: bool = False
+) -> list[np.ndarray]:
+    """Per track (V, D) values of frame ``frame`` of another BVH, matched by
+    joint name.
+
+    Values come from the file's local rotations and translations of the
+    joint of the same name, so a joint without position channels in the file
+    (e.g. a typical Blender export, with positions on the root only) gives
+    its offset as its translation.  Only the variables inside the
+    ``joints``/``subtree`` mask (all when ``joints`` is empty) must find
+    their joint in the file; the others, which the edit leaves alone, are
+    given as the identity (zero translation, unit quaternion).
+    """
     from ..motion import BvhMotion
 
     if doc.kind != "bvh" or not isinstance(motion, BvhMotion):
         raise UsageError("--from-bvh needs a BVH document and a BVH file")
     if not -motion.n_frames <= frame < motion.n_frames:
         raise UsageError(f"--frame {frame} is out of range (the file has frames 0 to {motion.n_frames - 1})")
-    theirs = {}
-    for kind, names, _, dense in dense_variables(motion):
-        for i, n in enumerate(names):
-            theirs[(kind, n)] = dense[frame, i]
+    mask = joint_mask(doc, joints, subtree)
+    ours = doc.source.skeleton.names
+    theirs = {n: j for j, n in enumerate(motion.skeleton.names)}
+    rot = motion.local_rotations()[frame]
+    tra = motion.local_translations()[frame]
     out = []
-    missing = []
-    for tr in doc.tracks:
-        vals = np.empty((tr.n_vars, tr.dim))
-        for i, n in enumerate(tr.names):
-            if (tr.kind, n) not in theirs:
-                missing.append(n)
+    missing: list[str] = []
+    for tr, m in zip(doc.tracks, mask, strict=True):
+        vals = np.zeros((tr.n_vars, 3)) if tr.kind == TRANSLATION else quat.identity((tr.n_vars,))
+        for i, target in enumerate(tr.targets):
+            if not m[i]:
                 continue
-            vals[i] = theirs[(tr.kind, n)]
+            name = ours[int(target)]
+            j = theirs.get(name)
+            if j is None:
+                if name not in missing:
+                    missing.append(name)
+                continue
+            vals[i] = tra[j] if tr.kind == TRANSLATION else rot[j]
         out.append(vals)
     if missing:
         raise UsageError(
-            f"the BVH has a different skeleton: it lacks {', '.join(missing[:5])}{'...' if len(missing) > 5 else ''}"
+            "the BVH has a different skeleton: it lacks joint"
+            f"{'s' if len(missing) > 1 else ''} {', '.join(missing[:5])}{'...' if len(missing) > 5 else ''}"
         )
     return out
 
@@ -252,4 +289,12 @@ def true_pose(doc: Document, k: int) -> list[np.ndarray]:
     return [evaluate(tr, np.array([doc.pose_t[k]]))[0] for tr in doc.tracks]
 
 
-__all__ = ["edit_pose", "values_from_motion", "reference_values", "pose_values", "true_pose", "Track"]
+__all__ = [
+    "edit_pose",
+    "exaggeration_mask",
+    "values_from_motion",
+    "reference_values",
+    "pose_values",
+    "true_pose",
+    "Track",
+]

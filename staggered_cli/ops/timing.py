@@ -42,7 +42,7 @@ def select_poses(
             mask[k % K] = True
     if time_range is not None:
         a, b = time_range
-        if not (np.isfinite(a) and np.isfinite(b)) or a > b:
+        if np.isnan(a) or np.isnan(b) or a > b:
             raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
         if b < 0 or a > doc.duration + 1e-9:
             raise UsageError(f"--time {a}:{b} lies outside the clip (0 to {doc.duration:.4f} s)")
@@ -58,21 +58,53 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
     A knot that would cross a neighbouring knot raises KnotOrderError, or
     with ``clamp`` stops half a frame short of it.  A knot that ends closer
     to a neighbouring pose than to its own is warned about (logging).
+    Contact constraints move with the timing of the joint that carries them
+    (see :func:`_warp_constraints`).
     """
     delta = np.asarray(delta, dtype=float)
     if delta.shape != (doc.n_poses, len(doc.variable_names)):
         raise ValueError(f"delta must have shape {(doc.n_poses, len(doc.variable_names))}, got {delta.shape}")
     if not np.all(np.isfinite(delta)):
         raise UsageError("timing offsets must be finite")
-    tracks, col = [], 0
+    tracks, warps, col = [], {}, 0
     for tr in doc.tracks:
         d = delta[:, col : col + tr.n_vars]
         col += tr.n_vars
-        tracks.append(_retime_track(doc, tr, d, clamp) if np.any(d != 0.0) else tr)
-    return doc.with_tracks(tuple(tracks))
+        if not np.any(d != 0.0):
+            tracks.append(tr)
+            continue
+        track, old_ext, new_ext = _retime_track(doc, tr, d, clamp)
+        tracks.append(track)
+        for i in np.flatnonzero(np.any(old_ext != new_ext, axis=0)):
+            warps[(tr.kind, int(tr.targets[i]))] = (old_ext[:, i], new_ext[:, i])
+    return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps))
 
 
-def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> Track:
+def _warp_constraints(doc: Document, warps: dict) -> tuple:
+    """Constraints moved with the retimed motion.
+
+    A BVH contact on a joint follows the time warp of its nearest ancestor
+    whose rotation was retimed (a foot's plant moves with its knee); a C3D
+    marker's follows its own.  Others stay.
+    """
+    if not warps:
+        return doc.constraints
+    out = []
+    for c in doc.constraints:
+        warp = None
+        if doc.kind == "bvh":
+            sk = doc.source.skeleton
+            j = sk.parents[sk.names.index(c.joint)] if c.joint in sk.names else -1
+            while j >= 0 and warp is None:
+                warp = warps.get(("rotation", int(j)))
+                j = sk.parents[j]
+        elif c.joint in doc.source.labels:
+            warp = warps.get(("translation", doc.source.labels.index(c.joint)))
+        out.append(c if warp is None else c.warped(*warp))
+    return tuple(out)
+
+
+def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> tuple[Track, np.ndarray, np.ndarray]:
     """New refinements ``r + delta`` for one track (see :func:`change_refinements`).
 
     The motion is first warped in time, per variable, by the piecewise-linear
@@ -82,13 +114,15 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> T
     near an extreme moves with it.  Then the editing knots return to ``t_k``
     with the value the warped motion has there (paper Figure 6c) and the
     displacement maps are measured again from the warped motion.
+
+    Returns the track and the old and new extreme knot times (K, V).
     """
     K = doc.n_poses
     ext_t, value, _ = pose_arrays(tr, K)
     refine = ext_t - doc.pose_t[:, None]
     new_refine = refine + delta
     if clamp:
-        new_refine = _clamped(doc.pose_t, new_refine, _MARGIN_FRAMES * doc.frame_time)
+        new_refine = _clamped(doc.pose_t, refine, new_refine, _MARGIN_FRAMES * doc.frame_time)
     new_refine[np.abs(new_refine) < 1e-12] = 0.0
     _check_final_order(doc, tr, new_refine)
     old_ext = doc.pose_t[:, None] + refine
@@ -102,8 +136,9 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> T
     edit = value.copy()
     if len(kk):
         edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk])
-    _warn_far_knots(doc, tr, new_refine)
-    return restructure(warped, *knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names))
+    _warn_far_knots(doc, tr, refine, new_refine)
+    knots = knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names)
+    return restructure(warped, *knots, frame_t=doc.frame_times), old_ext, new_ext
 
 
 def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
@@ -121,30 +156,34 @@ def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
         )
 
 
-def _clamped(pose_t: np.ndarray, wanted: np.ndarray, margin: float) -> np.ndarray:
+def _clamped(pose_t: np.ndarray, current: np.ndarray, wanted: np.ndarray, margin: float) -> np.ndarray:
     """Refinements as close to ``wanted`` as the knot order allows.
 
     Left to right, each pose's knots stay ``margin`` seconds clear of the
-    previous pose's (as already clamped) and of the next pose's (as wanted,
-    but never past its editing knot at ``t_{k+1}``).  An extreme knot may
-    pass its own pose time: the editing knot simply ends on its other side.
+    previous pose's (as already clamped) and of the next pose's as they are
+    now, so no pose moves that was not asked to, and the current refinement
+    is always allowed.  An extreme knot may pass its own pose time: the
+    editing knot simply ends on its other side.
     """
-    out = wanted.copy()
+    out = current.copy()
     K = len(pose_t)
     for k in range(1, K - 1):
         prev_hi = np.maximum(pose_t[k - 1], pose_t[k - 1] + out[k - 1])
-        next_lo = np.minimum(pose_t[k + 1], pose_t[k + 1] + out[k + 1])
-        lo = prev_hi + margin - pose_t[k]
-        hi = next_lo - margin - pose_t[k]
-        out[k] = np.clip(out[k], lo, hi)
+        next_lo = np.minimum(pose_t[k + 1], pose_t[k + 1] + current[k + 1])
+        lo = np.minimum(prev_hi + margin - pose_t[k], current[k])
+        hi = np.maximum(next_lo - margin - pose_t[k], current[k])
+        out[k] = np.clip(wanted[k], lo, hi)
     return out
 
 
-def _warn_far_knots(doc: Document, tr: Track, refine: np.ndarray) -> None:
+def _warn_far_knots(doc: Document, tr: Track, before: np.ndarray, refine: np.ndarray) -> None:
+    """Warn about extreme knots that an edit left closer to a neighbouring
+    pose than to their own (knots that were already there are not repeated)."""
     t = doc.pose_t
     gap_prev = np.concatenate([[np.inf], np.diff(t)])
     gap_next = np.concatenate([np.diff(t), [np.inf]])
     far = ((refine > 0) & (refine > gap_next[:, None] / 2)) | ((refine < 0) & (-refine > gap_prev[:, None] / 2))
+    far &= refine != before
     for k in np.flatnonzero(far.any(axis=1)):
         which = ", ".join(f"{tr.names[i]} {refine[k, i]:+.3f} s" for i in np.flatnonzero(far[k]))
         log.warning("pose %d: extreme knots closer to a neighbouring pose than to their own: %s", k, which)
@@ -265,4 +304,5 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
             raise KnotOrderError(f"moving pose {k} to {new_time:.4f} s: {exc}") from None
     pose_t = doc.pose_t.copy()
     pose_t[k] = new_time
-    return doc.with_tracks(tuple(tracks), pose_t=pose_t)
+    constraints = tuple(c.warped(doc.pose_t, pose_t) for c in doc.constraints)
+    return doc.with_tracks(tuple(tracks), pose_t=pose_t, constraints=constraints)

@@ -1,0 +1,112 @@
+"""Regressions found by review: each test is one bug that was fixed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from staggered_cli import document as D
+from staggered_cli.errors import KnotOrderError
+from staggered_cli.io.bvh import read_bvh
+from staggered_cli.io.c3d import read_c3d
+from staggered_cli.ops import cull, timing
+from staggered_cli.ops.bake import bake
+from staggered_cli.ops.extract import extract
+
+from .conftest import mocap
+
+
+@pytest.fixture(scope="module")
+def run():
+    m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
+    return m, extract(m)
+
+
+@pytest.fixture(scope="module")
+def walk():
+    m = read_bvh(mocap("cmu_02_01_walk.bvh"))
+    return m, extract(m)
+
+
+def test_adding_a_pose_inside_a_staggered_span_is_refused(run):
+    _, doc = run
+    with pytest.raises(KnotOrderError, match="inside the staggered span"):
+        cull.add_pose(doc, 1.1179)
+
+
+def test_culling_after_a_timing_edit_keeps_the_baked_motion(run):
+    _, doc = run
+    edited = timing.succession(doc, 0.01, 1.0, joint="UpperArm_L", clamp=True)
+    before = bake(edited, ik=False).channels
+    after = bake(cull.keep_poses(edited, cull.choose(edited, keep="50%")), ik=False).channels
+    assert np.abs(after - before).max() < 1e-6
+    moved = timing.retime_pose(doc, 5, doc.pose_t[5] + 0.02)
+    before = bake(moved, ik=False).channels
+    after = bake(cull.keep_poses(moved, cull.choose(moved, keep="50%")), ik=False).channels
+    assert np.abs(after - before).max() < 1e-6
+
+
+def test_clamp_stops_short_and_moves_only_the_chosen_poses(walk):
+    _, doc = walk
+    out = timing.succession(doc, -0.02, 1.5, joint="LeftShoulder", clamp=True)
+    assert out.n_poses == doc.n_poses
+    mask = timing.select_poses(doc, [3])
+    one = timing.randomize(doc, 0.2, 0, poses=mask, clamp=True)
+    changed = np.any(one.refinements() != doc.refinements(), axis=1)
+    assert not changed[np.arange(doc.n_poses) != 3].any()
+
+
+@pytest.mark.parametrize("name, fps", [("bandai2_run_normal_001.bvh", 30.0), ("cmu_02_01_walk.bvh", 120.0)])
+def test_baking_at_the_nominal_rate_is_the_identity(name, fps):
+    m = read_bvh(mocap(name))
+    doc = extract(m)
+    out = bake(doc, fps=fps)
+    assert out.n_frames == m.n_frames
+    np.testing.assert_array_equal(out.channels, m.channels)
+
+
+def test_resampling_never_flips_to_the_twin_triple(run):
+    m, doc = run
+    for fps in (24.0, 60.0, 100.0):
+        ch = bake(doc, fps=fps).channels
+        # consecutive output frames are at most a source frame apart: no jump near 180 degrees
+        assert np.abs(np.diff(ch[:, 3:], axis=0)).max() < 90.0
+
+
+def test_resampled_c3d_markers_do_not_judder():
+    m = read_c3d(mocap("c3dorg_sample01_Eb015pi_walk.c3d"))
+    doc = extract(m)
+    with_layer = bake(doc, fps=100.0).points
+    without = bake(doc, fps=100.0, ik=False).points
+    # the layer used to hold markers on the nearest source frame: a staircase
+    # whose every other step was exactly zero
+    for c in doc.constraints:
+        m_i = m.labels.index(c.joint)
+        t = np.arange(len(with_layer)) / 100.0
+        inside = (t >= c.start) & (t <= c.end)
+        steps = np.linalg.norm(np.diff(with_layer[inside, m_i], axis=0), axis=1)
+        ref = np.linalg.norm(np.diff(without[inside, m_i], axis=0), axis=1)
+        assert np.sum(steps == 0.0) <= np.sum(ref == 0.0) + 1
+    assert np.nanmax(np.abs(with_layer - without)) < 2e-3 * m.figure_height()
+
+
+def test_open_ended_time_ranges(walk):
+    _, doc = walk
+    assert cull.choose(doc, interval=(1.0, np.inf)).sum() >= 2
+    assert timing.select_poses(doc, time_range=(-np.inf, 1.0)).any()
+
+
+def test_contacts_move_with_a_retimed_pose(walk):
+    _, doc = walk
+    c = doc.constraints[len(doc.constraints) // 2]
+    k = int(np.argmin(np.abs(doc.pose_t - c.start)))
+    k = min(max(k, 1), doc.n_poses - 2)
+    dt = 0.3 * (doc.pose_t[k + 1] - doc.pose_t[k])
+    moved = timing.retime_pose(doc, k, doc.pose_t[k] + dt)
+    old = {(x.joint, x.start) for x in doc.constraints}
+    shifted = [x for x in moved.constraints if (x.joint, x.start) not in old]
+    assert shifted and all(x.source_span != (x.start, x.end) for x in shifted)
+    manifest, arrays = D.to_parts(moved)
+    assert D.from_parts(manifest, arrays).constraints == moved.constraints
+    # the unedited parts keep their constraints and the bake stays finite
+    assert np.all(np.isfinite(bake(moved).channels))
