@@ -110,3 +110,14 @@ def test_contacts_move_with_a_retimed_pose(walk):
     assert D.from_parts(manifest, arrays).constraints == moved.constraints
     # the unedited parts keep their constraints and the bake stays finite
     assert np.all(np.isfinite(bake(moved).channels))
+
+
+def test_variables_that_never_move_are_not_retimed(run):
+    """Bandai has constant position channels on every joint: retiming them
+    changed nothing visible and could only get the edit refused."""
+    _, doc = run
+    out = timing.succession(doc, 0.02, 1.0, joint="Shoulder_L")
+    names = doc.variable_names
+    changed = np.any(out.refinements() != doc.refinements(), axis=0)
+    assert not any(changed[i] for i, n in enumerate(names) if n.endswith(".position"))
+    assert changed[names.index("LowerArm_L")]

@@ -68,7 +68,8 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
         raise UsageError("timing offsets must be finite")
     tracks, warps, col = [], {}, 0
     for tr in doc.tracks:
-        d = delta[:, col : col + tr.n_vars]
+        # a variable that never moves has no timing: retiming it could only be refused
+        d = delta[:, col : col + tr.n_vars] * ~static_variables(tr)[None, :]
         col += tr.n_vars
         if not np.any(d != 0.0):
             tracks.append(tr)
@@ -78,6 +79,25 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
         for i in np.flatnonzero(np.any(old_ext != new_ext, axis=0)):
             warps[(tr.kind, int(tr.targets[i]))] = (old_ext[:, i], new_ext[:, i])
     return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps))
+
+
+def static_variables(tr: Track, tolerance: float = 1e-9) -> np.ndarray:
+    """Mask (V,) of the variables that never move: all knot values equal and
+    no displacement (e.g. Bandai's constant position channels on every joint)."""
+    var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
+    first = tr.knot_v[tr.knot_ptr[:-1]]
+    if tr.kind == "rotation":
+        knot_dev = 1.0 - np.abs(np.sum(tr.knot_v * first[var], axis=1))
+        owner = np.repeat(np.arange(tr.n_vars), np.diff(tr.samp_ptr))
+        disp = 1.0 - np.abs(tr.samp_d[:, 0])
+    else:
+        knot_dev = np.max(np.abs(tr.knot_v - first[var]), axis=1)
+        owner = np.repeat(np.arange(tr.n_vars), np.diff(tr.samp_ptr))
+        disp = np.max(np.abs(tr.samp_d), axis=1) if len(tr.samp_d) else np.zeros(0)
+    moving = np.zeros(tr.n_vars, dtype=bool)
+    moving[var[knot_dev > tolerance]] = True
+    moving[owner[disp > tolerance]] = True
+    return ~moving
 
 
 def _warp_constraints(doc: Document, warps: dict) -> tuple:
