@@ -121,3 +121,14 @@ def test_variables_that_never_move_are_not_retimed(run):
     changed = np.any(out.refinements() != doc.refinements(), axis=0)
     assert not any(changed[i] for i, n in enumerate(names) if n.endswith(".position"))
     assert changed[names.index("LowerArm_L")]
+
+
+def test_priorities_follow_the_poses_that_remain(walk):
+    """After a cull the neighbours are farther apart: priorities are the
+    paper's P(t_k)(t_{k+1} - t_{k-1}) over the poses that remain."""
+    _, doc = walk
+    culled = cull.keep_poses(doc, cull.choose(doc, keep="50%", ignore_contacts=True))
+    P = doc.signals["P"]
+    f = np.rint(culled.pose_t[1:-1] / doc.frame_time).astype(int)
+    np.testing.assert_allclose(culled.priority[1:-1], P[f] * (culled.pose_t[2:] - culled.pose_t[:-2]))
+    assert np.isinf(culled.priority[[0, -1]]).all()

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..document import Document
+from ..document import Document, reprioritized
 from ..errors import KnotOrderError, UsageError
 from ..representation import evaluate_at, restructure
 
@@ -100,7 +100,9 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
         knots = (ptr, tr.knot_t[k], tr.knot_v[k], new_index[tr.knot_pose[k]], tr.knot_editing[k])
         tracks.append(restructure(tr, *knots, frame_t=doc.frame_times))
     signals = dict(doc.signals)
-    return doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
+    return reprioritized(
+        doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
+    )
 
 
 def add_pose(doc: Document, time: float) -> Document:
@@ -143,4 +145,4 @@ def add_pose(doc: Document, time: float) -> Document:
         tracks.append(restructure(tr, ptr, knot_t, knot_v, knot_pose, knot_editing, frame_t=doc.frame_times))
     pose_t = np.insert(doc.pose_t, k_new, time)
     priority = np.insert(doc.priority, k_new, 0.0)
-    return doc.with_tracks(tuple(tracks), pose_t=pose_t, priority=priority)
+    return reprioritized(doc.with_tracks(tuple(tracks), pose_t=pose_t, priority=priority))

@@ -14,7 +14,7 @@ import logging
 
 import numpy as np
 
-from ..document import Document
+from ..document import Document, reprioritized
 from ..errors import KnotOrderError, UsageError
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
 
@@ -48,6 +48,8 @@ def select_poses(
             raise UsageError(f"--time {a}:{b} lies outside the clip (0 to {doc.duration:.4f} s)")
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if interior and K:
+        if poses is not None and (mask[0] or mask[-1]):
+            log.warning("the first and last pose pin the clip's ends: their timing is left alone")
         mask[0] = mask[-1] = False
     return mask
 
@@ -325,4 +327,4 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
     pose_t = doc.pose_t.copy()
     pose_t[k] = new_time
     constraints = tuple(c.warped(doc.pose_t, pose_t) for c in doc.constraints)
-    return doc.with_tracks(tuple(tracks), pose_t=pose_t, constraints=constraints)
+    return reprioritized(doc.with_tracks(tuple(tracks), pose_t=pose_t, constraints=constraints))
