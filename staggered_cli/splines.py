@@ -659,6 +659,19 @@ class _NormalEquations:
         return cost, jtj, jtr
 
 
+def _tangent_space_start(
+    q0: np.ndarray, q3: np.ndarray, seg: np.ndarray, u: np.ndarray, values: np.ndarray, n_segments: int
+) -> np.ndarray:
+    """Tangents (S, 6) from a linear Bezier fit of log(q0^-1 q) over each segment."""
+    r = quat.log(quat.mul(quat.conj(q0[seg]), values))
+    r3 = quat.log(quat.mul(quat.conj(q0), q3))
+    p1_rel, p2_rel = fit_translation_tangents(np.zeros_like(r3), r3, seg, u, r, n_segments)
+    p1, p2 = p1_rel, r3 + p2_rel  # the inner controls in the tangent space at q0
+    a = _wrap_rotation_vector(p1)
+    b = _wrap_rotation_vector(quat.log(quat.mul(quat.conj(q3), quat.mul(q0, quat.exp(p2)))))
+    return np.concatenate([a, b], axis=-1)
+
+
 def fit_rotation_tangents(
     q0: np.ndarray,
     q3: np.ndarray,
@@ -731,6 +744,14 @@ def fit_rotation_tangents(
     jtj = np.zeros((n_segments, 6, 6))
     jtr = np.zeros((n_segments, 6))
     cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
+    # a second start: the Bezier fitted linearly in the tangent space at q0,
+    # which is close to the optimum for the small turns of most segments;
+    # each segment starts from whichever of the two fits better
+    guess = _tangent_space_start(q0, q3, seg[use], u[use], values[use], n_segments)[rows]
+    g_cost, g_jtj, g_jtr = normal(rows, guess)
+    take = np.isfinite(g_cost) & (g_cost < cost[rows])
+    params[rows[take]], cost[rows[take]] = guess[take], g_cost[take]
+    jtj[rows[take]], jtr[rows[take]] = g_jtj[take], g_jtr[take]
     lam = np.full(n_segments, float(damping))
     eye = np.eye(6)
 
