@@ -49,7 +49,7 @@ import numpy as np
 from .document import Constraint
 from .errors import UsageError
 from .motion import BvhMotion, MarkerMotion
-from .skeleton import body_joints, end_site_positions, figure_height, forward_kinematics
+from .skeleton import body_joints
 
 #: Default minimum contact duration, seconds (the paper's 0.25 s misses running stance).
 DEFAULT_MIN_CONTACT = 0.1
@@ -84,8 +84,8 @@ def effector_positions(
     """
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
-        wr, wp = forward_kinematics(sk, motion.local_rotations(), motion.local_translations())
-        height = figure_height(sk, wp, end_site_positions(sk, wr, wp))
+        wr, wp = motion.world()  # computed once per clip
+        height = motion.figure_height()
         idx = np.arange(sk.n_joints) if names is None else np.array([sk.index(n) for n in names], dtype=int)
         return tuple(sk.names[i] for i in idx), wp[:, idx], float(height)
     labels = motion.labels

@@ -22,8 +22,6 @@ from .errors import DataError, UsageError
 from .motion import (
     BvhMotion,
     MarkerMotion,
-    local_rotations_from_channels,
-    local_translations_from_channels,
     position_columns,
     rotation_columns,
 )
@@ -149,11 +147,7 @@ def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[s
     """The control variables of a clip as (kind, names, targets, dense values (T, V, D))."""
     layout = variable_layout(motion)
     if isinstance(motion, BvhMotion):
-        sk = motion.skeleton
-        dense = {
-            ROTATION: local_rotations_from_channels(sk, motion.channels),
-            TRANSLATION: local_translations_from_channels(sk, motion.channels),
-        }
+        dense = {ROTATION: motion.local_rotations(), TRANSLATION: motion.local_translations()}  # cached per clip
         return [(kind, names, targets, dense[kind][:, targets]) for kind, names, targets in layout]
     return [(*layout[0], fill_gaps(motion.points))]
 

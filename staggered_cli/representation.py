@@ -36,13 +36,14 @@ ROTATION = "rotation"
 _DIM = {TRANSLATION: 3, ROTATION: 4}
 _AT_KNOT = 1e-9  # seconds: a sample this close to a knot is the knot
 #: Rotation tangents are fitted to at most this many evenly spread samples of
-#: a segment (the displacement maps still keep every sample, so the motion
-#: stays exact): a cubic has four controls, and at 120 Hz most segments hold
-#: 15-30 frames that add fitting time, not information.
-FIT_SAMPLES = 12
-#: Levenberg-Marquardt steps at most per segment: past 15 the mean fit error
-#: of cmu_01_01 and the Bandai dance changes in the fourth decimal of a degree.
-FIT_ITERATIONS = 15
+#: a segment, with at most this many Levenberg-Marquardt steps (the
+#: displacement maps still keep every sample, so the motion stays exact): a
+#: cubic has four controls, and at 120 Hz most segments hold 15-30 frames that
+#: add fitting time, not information.  Against all samples and 30 steps, the
+#: mean spline error of cmu_01_01 grows from 0.560 to 0.568 degrees and the
+#: fit takes a third of the time.
+FIT_SAMPLES = 8
+FIT_ITERATIONS = 10
 
 
 @dataclass(frozen=True)

@@ -68,7 +68,7 @@ from . import quat
 from .document import dense_variables
 from .motion import BvhMotion, MarkerMotion
 from .representation import ROTATION
-from .skeleton import Skeleton, end_site_positions, figure_height, forward_kinematics
+from .skeleton import Skeleton
 
 #: A rotation step larger than this between two frames is a discontinuity of
 #: that variable (degrees): no joint turns 100° in one frame, even at 30 Hz.
@@ -425,8 +425,8 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
     breaks = np.zeros(max(T - 1, 0), dtype=bool)
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
-        wr, wp = forward_kinematics(sk, motion.local_rotations(), motion.local_translations())
-        height = figure_height(sk, wp, end_site_positions(sk, wr, wp))
+        wr, wp = motion.world()  # computed once per clip
+        height = motion.figure_height()
         rot_vals = next((d for k, _, _, d in variables if k == ROTATION), np.zeros((T, 0, 4)))
         breaks, rot_jumps = rotation_steps(rot_vals)
         col = 0

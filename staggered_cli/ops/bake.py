@@ -109,19 +109,45 @@ def _tolerance(size: float, same_rate: bool) -> float:
     return (_UNDISTURBED if same_rate else _RESAMPLED) * size
 
 
+def _chain_changed(sk, changed: np.ndarray, t: np.ndarray, c, blend: float) -> bool:
+    """Whether any joint from the root down to ``c.joint`` differs from the
+    source over the constraint's window (``changed`` (T, J) bool), or the
+    constraint was moved by a timing edit."""
+    if c.source_span != (float(c.start), float(c.end)):
+        return True
+    window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
+    j = sk.names.index(c.joint)
+    chain = []
+    while j >= 0:
+        chain.append(j)
+        j = int(sk.parents[j])
+    return bool(changed[np.ix_(window, chain)].any())
+
+
 def _contact_layer(
     doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool
 ) -> np.ndarray:
     """Repair the constraints the edits disturbed (see the module docstring)."""
     src = doc.source
     sk = src.skeleton
+    for c in doc.constraints:
+        if c.joint not in sk.names:
+            raise UsageError(f"constraint on unknown joint {c.joint!r}")
+    candidates = list(doc.constraints)
+    if same_rate:
+        # cheap first pass without forward kinematics: a constraint whose
+        # chain keeps the source's local values over its window is untouched
+        changed = (1.0 - np.abs(np.sum(rot * src.local_rotations(), axis=-1)) > 1e-12) | np.any(
+            np.abs(tr - src.local_translations()) > 1e-9, axis=-1
+        )
+        candidates = [c for c in candidates if _chain_changed(sk, changed, t, c, blend)]
+    if not candidates:
+        return rot
     _, wp = forward_kinematics(sk, rot, tr)
     src_wr, src_wp = src.world()
     size = figure_height(sk, src_wp, end_site_positions(sk, src_wr, src_wp))
     todo, targets = [], []
-    for c in doc.constraints:
-        if c.joint not in sk.names:
-            raise UsageError(f"constraint on unknown joint {c.joint!r}")
+    for c in candidates:
         j = sk.names.index(c.joint)
         path = _source_path(src_wp[:, j], doc.frame_time, c, t)
         if not _disturbed(wp[:, j], path, t, c, blend, _tolerance(size, same_rate)):
