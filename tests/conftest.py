@@ -18,3 +18,14 @@ def mocap(name: str) -> Path:
     if not path.exists():
         pytest.skip(f"{path} is not there (../shared/mocap must sit beside the checkout)")
     return path
+
+
+def one_line_error(result, code: int, *needles: str) -> None:
+    """A CLI result that failed with ``code`` and one ``staggered: ...`` line
+    on stderr containing every needle, without a traceback."""
+    assert result.exit_code == code, (result.exit_code, result.stderr)
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("staggered: "), result.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    assert "Traceback" not in result.stderr

@@ -14,20 +14,11 @@ from staggered_cli.document import from_parts, to_parts
 from staggered_cli.io.bvh import parse_bvh, read_bvh
 from staggered_cli.io.document import document_bytes, parse_document
 
-from .conftest import SAMPLES, mocap
+from .conftest import SAMPLES, mocap, one_line_error
 
 
 def run(args, input=None):
     return CliRunner().invoke(cli, args, input=input)
-
-
-def one_line_error(result, code, *needles):
-    assert result.exit_code == code, (result.exit_code, result.stderr)
-    lines = result.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("staggered: "), result.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    assert "Traceback" not in result.stderr
 
 
 @pytest.fixture(scope="module")

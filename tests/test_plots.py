@@ -22,7 +22,7 @@ from staggered_cli.document import to_parts
 from staggered_cli.errors import UsageError
 from staggered_cli.io.document import document_bytes
 
-from .conftest import BVH_FILES, C3D_FILES, SAMPLES, mocap
+from .conftest import BVH_FILES, C3D_FILES, SAMPLES, mocap, one_line_error
 
 ALL_FILES = BVH_FILES + C3D_FILES
 TEST_DPI = 60  # small pictures keep the tests quick
@@ -90,15 +90,6 @@ def write_doc(doc: D.Document, path) -> None:
 
 def run(args):
     return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def one_line_error(result, code: int, *needles: str) -> None:
-    assert result.exit_code == code, (result.exit_code, result.stderr)
-    lines = result.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("staggered: "), result.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    assert "Traceback" not in result.stderr
 
 
 # ------------------------------------------------------------- every file, every kind
