@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from staggered_cli import document as D
-from staggered_cli.errors import KnotOrderError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.c3d import read_c3d
 from staggered_cli.ops import cull, timing
@@ -28,10 +27,18 @@ def walk():
     return m, extract(m)
 
 
-def test_adding_a_pose_inside_a_staggered_span_is_refused(run):
-    _, doc = run
-    with pytest.raises(KnotOrderError, match="inside the staggered span"):
-        cull.add_pose(doc, 1.1179)
+def test_adding_a_pose_inside_a_staggered_span_makes_room(run, caplog):
+    """1.1179 s lies between pose 6's editing and extreme knots of several
+    variables: those refinements collapse, the motion does not change, and the
+    document stays readable (it used to be written with crossing knots)."""
+    m, doc = run
+    with caplog.at_level("WARNING"):
+        added = cull.add_pose(doc, 1.1179)
+    assert "collapse to 0" in caplog.text
+    assert added.n_poses == doc.n_poses + 1
+    manifest, arrays = D.to_parts(added)
+    D.from_parts(manifest, arrays)
+    assert np.abs(bake(added, ik=False).channels - m.channels).max() < 1e-6
 
 
 def test_culling_after_a_timing_edit_keeps_the_baked_motion(run):

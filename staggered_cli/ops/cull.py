@@ -7,11 +7,15 @@ change (SPEC invariant 2).
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..document import Document, reprioritized
-from ..errors import KnotOrderError, UsageError
-from ..representation import evaluate_at, restructure
+from ..errors import UsageError
+from ..representation import evaluate_at, knots_from_poses, pose_arrays, restructure
+
+log = logging.getLogger(__name__)
 
 
 def contact_poses(doc: Document, frames: int = 2) -> np.ndarray:
@@ -107,42 +111,39 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
 
 def add_pose(doc: Document, time: float) -> Document:
     """A new unrefined pose at ``time`` seconds (its knots take the values the
-    motion has there), motion unchanged."""
+    motion has there), motion unchanged.
+
+    Where ``time`` falls inside another pose's staggered span (between its
+    editing knot and its extreme knot) for some variable, that refinement is
+    collapsed to zero (the knot returns to its pose time, with the value the
+    motion has there), so the poses' knots stay in order; a warning names them.
+    """
     if not np.isfinite(time) or not 0.0 <= time <= doc.duration + 1e-9:
         raise UsageError(f"--add-time must lie within the clip (0 to {doc.duration:.4f} s), got {time}")
     if np.any(np.abs(doc.pose_t - time) < 1e-9):
         raise UsageError(f"there is already a pose at {time:.4f} s")
     k_new = int(np.searchsorted(doc.pose_t, time))
+    pose_t = np.insert(doc.pose_t, k_new, time)
     tracks = []
     for tr in doc.tracks:
-        var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
-        value = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time))
-        pose = np.where(tr.knot_pose >= k_new, tr.knot_pose + 1, tr.knot_pose)
-        # insert one knot per variable, keeping each variable's knots sorted
-        ins = np.array(
-            [tr.knot_ptr[i] + np.searchsorted(tr.knot_t[tr.knots(i)], time) for i in range(tr.n_vars)], dtype=int
+        ext_t, value, edit = pose_arrays(tr, doc.n_poses)
+        refine = ext_t - doc.pose_t[:, None]
+        lo = np.minimum(doc.pose_t[:, None], ext_t)
+        hi = np.maximum(doc.pose_t[:, None], ext_t)
+        conflict = (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi)
+        for k in np.flatnonzero(conflict.any(axis=1)):
+            names = ", ".join(tr.names[i] for i in np.flatnonzero(conflict[k]))
+            log.warning("--add-time %.4f s: pose %d's refinements of %s collapse to 0 to make room", time, k, names)
+        refine = np.where(conflict, 0.0, refine)
+        value = np.where(conflict[..., None], edit, value)
+        here = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time))
+        knots = knots_from_poses(
+            pose_t,
+            np.insert(refine, k_new, 0.0, axis=0),
+            np.insert(value, k_new, here, axis=0),
+            np.insert(edit, k_new, here, axis=0),
+            tr.names,
         )
-        for i in range(tr.n_vars):
-            kt = tr.knot_t[tr.knots(i)]
-            if np.any(np.abs(kt - time) < 1e-9):
-                raise KnotOrderError(f"a knot of {tr.names[i]!r} already sits at {time:.4f} s; choose another time")
-        knot_t = np.insert(tr.knot_t, ins, time)
-        knot_v = np.insert(tr.knot_v, ins, value, axis=0)
-        knot_pose = np.insert(pose, ins, k_new)
-        knot_editing = np.insert(tr.knot_editing, ins, False)
-        ptr = tr.knot_ptr + np.arange(tr.n_vars + 1)
-        del var
-        for i in range(tr.n_vars):
-            # a pose's knots must stay together: not between another pose's editing and extreme knot
-            p = knot_pose[ptr[i] : ptr[i + 1]]
-            if np.any(np.diff(p) < 0):
-                other = k_new - 1 if k_new > 0 and np.any(p == k_new - 1) else k_new + 1
-                lo, hi = tr.knot_t[tr.knots(i)][np.isin(tr.knot_pose[tr.knots(i)], [other - (other > k_new)])][[0, -1]]
-                raise KnotOrderError(
-                    f"--add-time {time:.4f} s falls inside the staggered span of {tr.names[i]!r} around pose "
-                    f"{other - (other > k_new)} ({lo:.4f} to {hi:.4f} s); choose a time outside it"
-                )
-        tracks.append(restructure(tr, ptr, knot_t, knot_v, knot_pose, knot_editing, frame_t=doc.frame_times))
-    pose_t = np.insert(doc.pose_t, k_new, time)
+        tracks.append(restructure(tr, *knots, frame_t=doc.frame_times))
     priority = np.insert(doc.priority, k_new, 0.0)
     return reprioritized(doc.with_tracks(tuple(tracks), pose_t=pose_t, priority=priority))
