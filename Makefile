@@ -82,39 +82,65 @@ samples: $(STAMP)
 # (make's rule: after changing STEPS, use -B).  STEPS has the syntax of
 # `staggered batch --steps` and is checked once before any file.  A failing
 # file leaves no output (bake writes atomically; a previous output of it is
-# removed) and its stderr in OUT/rel.err; with -k the others go on, and a
-# summary names each failure with its reason.  Spaces in paths work; names
-# with " $ ` \ : % # do not (make and the shell would read them).
+# removed) and its stderr in OUT/rel.err; with -k the others go on.  The
+# summary names every input without an up-to-date output, with its reason.
+# Spaces in names under IN work; IN and OUT themselves may hold no whitespace
+# and, like the names under IN, none of BATCH_BAD_CHARS (make or the shell
+# would read them): such IN / OUT are refused (exit 2), such files skipped
+# and reported as failed (`staggered batch` handles any name).
 STAGGERED ?= $(BIN)/staggered
 export STEPS
 BATCH_IN = $(patsubst %/,%,$(IN))
 BATCH_OUT = $(patsubst %/,%,$(OUT))
-BATCH_FIND = find . -xtype f \( -iname '*.bvh' -o -iname '*.c3d' \) | LC_ALL=C sort | sed 's|^\./||'
+BATCH_MAKEFILE := $(lastword $(MAKEFILE_LIST))
+# one name a line, sorted, without ./ (a newline in a name arrives as \036)
+BATCH_FIND = find . -xtype f \( -iname '*.bvh' -o -iname '*.c3d' \) -print0 | tr '\n\0' '\036\n' | LC_ALL=C sort | sed 's|^\./||'
+batch_empty :=
+# the characters, and a bracket expression (grep -E, bash =~) of them and control characters
+BATCH_BAD_CHARS := " \# $$ : ; = \ ` | % * ? [ ]
+BATCH_BAD_NAME := [][:cntrl:]"\#$$:;=\`|%*?[]
+BATCH_UNSUPPORTED := file name not supported by make batch; use staggered batch
+
+ifneq ($(filter batch,$(MAKECMDGOALS)),)
+# checked before anything runs: make splits IN and OUT on whitespace and reads the others
+batch_bad_paths := $(strip $(foreach c,$(BATCH_BAD_CHARS),$(if $(findstring $c,$(value IN)$(value OUT)),$c)))
+ifeq ($(strip $(value IN)),)
+$(error usage: make [-j N] [-k] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...'])
+else ifeq ($(strip $(value OUT)),)
+$(error usage: make [-j N] [-k] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...'])
+else ifneq ($(words x$(value IN)x x$(value OUT)x),2)
+$(error make batch: IN and OUT must not contain whitespace (make splits them); rename, or use staggered batch)
+else ifneq ($(batch_bad_paths),)
+$(error make batch: IN and OUT must not contain any of $(BATCH_BAD_CHARS) (found $(batch_bad_paths)); rename, or use staggered batch)
+endif
+endif
 
 batch: $(STAMP)
-	@if [ -z "$(strip $(IN))" ] || [ -z "$(strip $(OUT))" ]; then \
-	  echo "usage: make [-j N] [-k] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...']" >&2; exit 2; fi
 	@$(STAGGERED) -q batch "$(BATCH_IN)" "$(BATCH_OUT)" --steps "$$STEPS" --dry-run > /dev/null
-	@status=0; $(MAKE) --no-print-directory _batch-files || status=$$?; \
-	total=0; failed=0; \
+	@status=0; $(MAKE) -f "$(BATCH_MAKEFILE)" --no-print-directory _batch-files || status=$$?; \
+	export LC_ALL=C; bad='$(BATCH_BAD_NAME)'; total=0; failed=0; \
 	while IFS= read -r rel; do \
-	  total=$$((total + 1)); err="$(BATCH_OUT)/$$rel.err"; \
-	  if [ -f "$$err" ]; then \
-	    failed=$$((failed + 1)); \
-	    reason=$$(grep -v ': WARNING: ' -- "$$err" | grep -m 1 .); \
-	    echo "  FAILED $$rel: $${reason:-exit status $$status}"; \
+	  total=$$((total + 1)); in="$(BATCH_IN)/$$rel"; out="$(BATCH_OUT)/$$rel"; reason=; \
+	  if [[ $$rel =~ $$bad ]]; then \
+	    reason="$(BATCH_UNSUPPORTED)"; \
+	  elif [ -f "$$out.err" ]; then \
+	    reason=$$(grep -v ': WARNING: ' -- "$$out.err" | grep -m 1 .); reason=$${reason:-exit status $$status}; \
+	  elif [ ! -f "$$out" ] || [ "$$out" -ot "$$in" ]; then \
+	    reason="not built"; \
 	  fi; \
-	done < <(cd "$(BATCH_IN)" && $(BATCH_FIND)); \
+	  if [ -n "$$reason" ]; then failed=$$((failed + 1)); echo "  FAILED $$rel: $$reason"; fi; \
+	done < <(cd -- "$(BATCH_IN)" && $(BATCH_FIND)); \
 	echo "make batch: $$total files, $$failed failed (outputs in $(BATCH_OUT))"; \
+	if [ $$failed -gt 0 ] && [ $$status -eq 0 ]; then status=1; fi; \
 	exit $$status
 
 ifneq ($(filter _batch-files,$(MAKECMDGOALS)),)
 # make splits its word lists on spaces: a space in a path travels as \037
-# and becomes an escaped space only in the rules
+# and becomes an escaped space only in the rules; names make cannot handle
+# get no rule (the summary reports them)
 BATCH_US := $(shell printf '\037')
-batch_empty :=
 batch_esc = $(subst $(BATCH_US),\$(batch_empty) $(batch_empty),$1)
-BATCH_RELS := $(shell cd "$(BATCH_IN)" && $(BATCH_FIND) | tr ' ' '\037')
+BATCH_RELS := $(shell cd -- "$(BATCH_IN)" && $(BATCH_FIND) | LC_ALL=C grep -v -E -e '$(BATCH_BAD_NAME)' | tr ' ' '\037')
 BATCH_STEPS = $(if $(strip $(STEPS)),| $(STAGGERED) $(subst |, - -o - | $(STAGGERED) ,$(STEPS)) - -o - )
 BATCH_PIPE = $(STAGGERED) extract "$<" -o - $(BATCH_STEPS)| $(STAGGERED) bake - -o "$@" --force
 BATCH_RECIPE = set -o pipefail; out="$@"; err="$@.err"; mkdir -p -- "$$(dirname -- "$$out")"; \

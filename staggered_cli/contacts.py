@@ -163,6 +163,11 @@ def contact_joints(
     if names is not None:
         names = tuple(dict.fromkeys(str(n) for n in names))
         effector_positions(motion, names)  # raises for an unknown name
+        if isinstance(motion, BvhMotion):
+            from .ik import two_bone_chain
+
+            for n in names:
+                two_bone_chain(motion.skeleton, n)  # bake must be able to keep it planted
         return names
     all_names, pos, height = effector_positions(motion)
     if isinstance(motion, BvhMotion):
@@ -172,11 +177,23 @@ def contact_joints(
         root_h = h[body[0]]
         by_name = {j for j, n in enumerate(all_names) if _FOOT_NAME.search(n) and h[j] < root_h}
         lowest = {int(body[j]) for j in _lowest(pos[:, body], up, height)}
-        chosen = sorted(by_name | lowest)
+        chosen = [j for j in sorted(by_name | lowest) if _has_chain(motion.skeleton, j)]
     else:
         up = up_direction(pos, height)
         chosen = sorted(int(j) for j in _lowest(pos, up, height))
     return tuple(all_names[j] for j in chosen)
+
+
+def _has_chain(skeleton, j: int) -> bool:
+    """Whether bake's IK can keep joint ``j`` planted (a two-bone chain above it)."""
+    from .errors import UsageError
+    from .ik import two_bone_chain
+
+    try:
+        two_bone_chain(skeleton, j)
+    except UsageError:
+        return False
+    return True
 
 
 def planted_intervals(positions: np.ndarray, tolerance: float, min_frames: int) -> list[tuple[int, int]]:

@@ -28,6 +28,10 @@ from .motion import (
 from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
 from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
 
+#: Bounds of a resampled bake: no motion is captured finer than this.
+MAX_FPS_FACTOR = 100
+MAX_OUTPUT_FRAMES = 10_000_000
+
 FORMAT_NAME = "staggered-poses"
 FORMAT_VERSION = 1
 
@@ -267,6 +271,11 @@ def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
     if same_rate(doc, fps):
         return doc.frame_times
     n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
+    if fps > MAX_FPS_FACTOR * doc.source.rate or n > MAX_OUTPUT_FRAMES:
+        raise UsageError(
+            f"--fps {fps:g} is out of range: at most {MAX_FPS_FACTOR}x the source's {doc.source.rate:g} Hz "
+            f"and {MAX_OUTPUT_FRAMES} frames"
+        )
     return np.minimum(np.arange(n) / fps, doc.duration)
 
 
@@ -442,7 +451,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         f"document version {version} is newer than this staggered reads ({FORMAT_VERSION}); upgrade staggered",
     )
     try:
-        frames = int(manifest["frames"])
+        frames = _whole_number(manifest["frames"], "frames", 1, _MAX_INDEX)
         frame_time = float(manifest["frame_time"])
         src_info = manifest["source"]
         kind = src_info["kind"]
@@ -458,7 +467,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             for c in manifest.get("constraints", [])
         )
         parameters = manifest.get("parameters", {})
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"manifest is incomplete ({type(exc).__name__}: {str(exc)[:60]})") from None
     need(frames >= 1 and np.isfinite(frame_time) and frame_time > 0, "frames and frame_time must be positive")
     need(kind in ("bvh", "c3d"), f"unknown source kind {str(kind)[:20]!r}")
@@ -469,10 +478,10 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             J = len(names)
             sk = Skeleton(
                 names=names,
-                parents=np.array(b["parents"], dtype=int).reshape(J),
+                parents=_whole_numbers(b["parents"], "bvh parents", -1, J - 1).reshape(J),
                 offsets=np.array(b["offsets"], dtype=float).reshape(J, 3),
                 channels=tuple(tuple(str(c) for c in ch) for ch in b["channels"]),
-                end_parents=np.array(b["end_parents"], dtype=int).reshape(-1),
+                end_parents=_whole_numbers(b["end_parents"], "bvh end_parents", 0, J - 1).reshape(-1),
                 end_offsets=np.array(b["end_offsets"], dtype=float).reshape(-1, 3),
             )
             need(len(sk.channels) == J, "bvh channels do not match the joints")
@@ -536,7 +545,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                     need(False, str(exc))
             source = MarkerMotion(labels, pts, float(c["rate"]), str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"source description is malformed ({type(exc).__name__}: {str(exc)[:60]})") from None
     pose_t = arr("pose_t", 1)
     priority = arr("priority", 1)
@@ -560,8 +569,8 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         try:
             tkind = info["kind"]
             tnames = tuple(str(x) for x in info["names"])
-            targets = np.array(info["targets"], dtype=int).reshape(len(tnames))
-        except (KeyError, TypeError, ValueError):
+            targets = _whole_numbers(info["targets"], f"track {n} targets", 0, _MAX_INDEX).reshape(len(tnames))
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise DataError(f"track {n} description is malformed") from None
         need(tkind in (TRANSLATION, ROTATION), f"track {n} has unknown kind {str(tkind)[:20]!r}")
         want_kind, want_names, want_targets = layout[n]
@@ -584,7 +593,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             bool(np.isfinite(s0) and np.isfinite(s1)) and -half_frame <= s0 <= s1 <= duration + half_frame,
             f"constraint on {c.joint[:40]!r}: its source span {s0:g} to {s1:g} s is not within the clip",
         )
-    signals = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("signal.")}
+    signals = _checked_signals(arrays, frames, sum(len(tr.names) for tr in tracks), need)
     if isinstance(parameters, dict):  # what `constraints --detect` reuses must be usable
         joints_param = parameters.get("contact_joints", [])
         need(
@@ -612,6 +621,52 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
 
 def _safe_format(fmt: str) -> bool:
     return re.fullmatch(r"%\.\d{1,2}[fg]", fmt) is not None
+
+
+#: Largest frame count or index a manifest may give (far beyond any clip, and
+#: small enough for every integer array and float conversion).
+_MAX_INDEX = 2**31 - 1
+
+
+def _whole_number(value, what: str, lo: int, hi: int) -> int:
+    """``value`` if it is a JSON whole number (not a float, not a bool) in
+    ``[lo, hi]``; else a DataError naming ``what``."""
+    if type(value) is not int or not lo <= value <= hi:
+        shown = repr(value) if len(repr(value)) <= 24 else repr(value)[:20] + "..."
+        raise DataError(f"{what} must be a whole number from {lo} to {hi}, got {shown}")
+    return value
+
+
+def _whole_numbers(values, what: str, lo: int, hi: int) -> np.ndarray:
+    """An int array of a JSON list of whole numbers in ``[lo, hi]`` (floats
+    such as 2.5 or 1e308 and bools are refused, not truncated)."""
+    if not isinstance(values, list):
+        raise DataError(f"{what} must be a list of whole numbers")
+    for i, v in enumerate(values):
+        _whole_number(v, f"{what}[{i}]", lo, hi)
+    return np.array(values, dtype=np.int64)
+
+
+#: Stored signals of known meaning and their shapes: T frames, V variables.
+_SIGNAL_SHAPES = {"P": ("T",), "p": ("T", "V"), "weights": ("V",), "contact": ("T",)}
+
+
+def _checked_signals(arrays: dict, frames: int, n_vars: int, need) -> dict[str, np.ndarray]:
+    """The ``signal.*`` arrays: numeric and finite, and the known ones of
+    their shape (plots and reprioritizing read them)."""
+    signals = {}
+    for key, val in arrays.items():
+        if not key.startswith("signal."):
+            continue
+        name = key.split(".", 1)[1]
+        need(isinstance(val, np.ndarray) and val.dtype.kind in "fiub", f"array {key!r} is not numeric")
+        need(bool(np.all(np.isfinite(val))), f"array {key!r} holds values that are not finite")
+        if name in _SIGNAL_SHAPES:
+            dims = {"T": frames, "V": n_vars}
+            want = tuple(dims[d] for d in _SIGNAL_SHAPES[name])
+            need(val.shape == want, f"array {key!r} has shape {val.shape}, expected {want}")
+        signals[name] = val
+    return signals
 
 
 #: Largest magnitude of a source value (the readers' limit) and of a fitted
@@ -755,7 +810,7 @@ def document_summary(doc: Document) -> dict:
         "frames": doc.n_frames,
         "frame_time": doc.frame_time,
         "rate": src.rate,
-        "duration": round(doc.duration, 9),
+        "duration": round(doc.n_frames * doc.frame_time, 9),  # as for the clip: frames x frame time
         "variables": len(names),
         "poses": poses,
         "constraints": [

@@ -293,7 +293,7 @@ def test_poses_sit_on_contact_changes(name):
 
 def test_contact_poses_cover_every_change():
     b = np.array([3, 4, 10, 11, 12, 13, 14, 30])
-    poses = contact_poses(b, 2)
+    poses = contact_poses(b, 4)
     assert all(np.min(np.abs(poses - x)) <= 2 for x in b)
     assert len(poses) < len(b)
 

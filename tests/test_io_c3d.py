@@ -302,7 +302,9 @@ def test_write_changes_rate(motions, tmp_path):
     dst = ezc3d.c3d(str(out))
     assert read_c3d(out).rate == 100.0
     assert dst["header"]["points"]["frame_rate"] == 100.0
-    assert dst["parameters"]["ANALOG"]["RATE"]["value"][0] == 400.0  # 4 samples per frame kept
+    # the analogs keep their real rate (200 Hz, now 2 samples a 100 Hz frame)
+    assert dst["parameters"]["ANALOG"]["RATE"]["value"][0] == 200.0
+    assert dst["data"]["analogs"].shape[2] == 2 * motion.n_frames
 
 
 # --------------------------------------------------------------------------

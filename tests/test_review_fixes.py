@@ -94,7 +94,7 @@ def test_resampled_c3d_markers_do_not_judder():
         steps = np.linalg.norm(np.diff(with_layer[inside, m_i], axis=0), axis=1)
         ref = np.linalg.norm(np.diff(without[inside, m_i], axis=0), axis=1)
         assert np.sum(steps == 0.0) <= np.sum(ref == 0.0) + 1
-    assert np.nanmax(np.abs(with_layer - without)) < 2e-3 * m.figure_height()
+    assert np.nanmax(np.abs(with_layer - without)) < 5e-3 * m.figure_height()
 
 
 def test_open_ended_time_ranges(walk):

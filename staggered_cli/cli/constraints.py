@@ -31,7 +31,7 @@ def parse_span(value: str) -> tuple[str, float, float]:
     return joint, start, end
 
 
-def _check_span(doc, joint: str, start: float, end: float) -> None:
+def _check_span(doc, joint: str, start: float, end: float) -> tuple[float, float]:
     """A constraint to add must name a joint (with a chain to solve) or marker,
     and lie within the clip."""
     from ..errors import UsageError
@@ -44,8 +44,10 @@ def _check_span(doc, joint: str, start: float, end: float) -> None:
     elif joint not in src.labels:
         shown = ", ".join(src.labels[:8]) + (", ..." if len(src.labels) > 8 else "")
         raise UsageError(f"unknown marker {joint!r} (markers: {shown})")
-    if start < -1e-9 or end > doc.duration + 1e-9:
+    half = 0.5 * doc.frame_time  # times as the listing prints them (4 decimals) must be accepted
+    if start < -half or end > doc.duration + half:
         raise UsageError(f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.duration:.4f} s)")
+    return max(start, 0.0), min(end, doc.duration)
 
 
 def _detect(doc, joints: list[str] | None, min_contact: float | None, tolerance: float | None) -> tuple:
@@ -169,7 +171,7 @@ def constraints(
         drop = {k % n for k in removes}
         cons = tuple(c for i, c in enumerate(cons) if i not in drop)
     for joint, start, end in spans:
-        _check_span(doc, joint, start, end)
+        start, end = _check_span(doc, joint, start, end)
         cons = cons + (Constraint(joint, start, end),)
     cons = tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint)))
     write_document(replace(doc, constraints=cons), output, fmt, force)

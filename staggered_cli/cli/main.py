@@ -32,6 +32,7 @@ import click
 
 from .. import __version__
 from ..errors import StaggeredError
+from .options import INPUT_KEY
 
 PROG = "staggered"
 
@@ -128,6 +129,10 @@ class StaggeredGroup(LazyGroup):
         except StaggeredError as err:
             if debug:
                 raise
+            if err.source is None and ctx.meta.get(INPUT_KEY) is not None:
+                from ..io.files import display_name
+
+                err.with_source(display_name(ctx.meta[INPUT_KEY]))  # the file the problem is about
             click.echo(f"{PROG}: {_one_line(str(err))}", err=True)
             ctx.exit(err.exit_code)
         except KeyboardInterrupt:

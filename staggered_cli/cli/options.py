@@ -40,10 +40,21 @@ STDIO = files.STDIO
 
 _BOM = b"\xef\xbb\xbf"
 
+#: Where the command's input is remembered, so that the one error path can
+#: name it in any error that does not name a file itself.
+INPUT_KEY = "staggered.input"
+
+
+def _remember_input(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    ctx.meta[INPUT_KEY] = value
+    return value
+
+
 input_argument = click.argument(
     "input_path",
     metavar="FILE",
     type=click.Path(allow_dash=True, path_type=str),
+    callback=_remember_input,
 )
 
 output_option = click.option(

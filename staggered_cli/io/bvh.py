@@ -414,12 +414,12 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     ]
     header = "\n".join(out) + "\n"
     if ch.shape[0] == 0:
-        return header.encode("ascii")
+        return header.encode("utf-8")
     row = " ".join([motion.number_format] * ch.shape[1]) + "\n"
     # one % over the whole block: the fastest pure-Python formatting
     flat = ch.ravel().tolist()
     body = (row * ch.shape[0]) % tuple(flat)
-    return (header + body).encode("ascii")
+    return (header + body).encode("utf-8")
 
 
 def write_bvh(path: str | os.PathLike, motion: BvhMotion, force: bool = True) -> None:

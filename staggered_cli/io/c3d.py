@@ -529,11 +529,14 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     source is rewritten with new points: every parameter, analog channel and
     header event is kept.  Markers are matched to the source by label, so
     their residuals and camera masks carry over; new markers get residual 0.
-    When the frame count differs from the source, frames keep their time
-    from the first frame on: analog samples are cut at the new end, or the
-    last sample is held to fill a longer clip, so the analog samples per
-    frame stay; the frame-count parameters (``POINT:FRAMES``,
-    ``TRIAL:ACTUAL_END_FIELD``, ``POINT:LONG_FRAMES``) follow.
+    When the frame count or rate differs from the source, frames keep their
+    time from the first frame on and so do analog samples: at the source's
+    rate they are cut at the new end, or the last sample is held to fill a
+    longer clip; at a new rate they are resampled in time, at the source's
+    analog rate when it is a whole multiple of the new point rate, else at
+    the nearest whole multiple (see :func:`_fit_analogs`); the frame-count
+    parameters (``POINT:FRAMES``, ``TRIAL:ACTUAL_END_FIELD``,
+    ``POINT:LONG_FRAMES``) follow.
 
     Without a source a fresh C3D is built with POINT parameters only.
 
@@ -679,10 +682,17 @@ def _carry_point_metadata(
 
 
 def _fit_analogs(c3d, n_frames: int, rate: float) -> None:
-    """Resize the analog block (1, channels, T * r) to ``n_frames`` frames.
+    """Fit the analog block (1, channels, T * r) to ``n_frames`` frames at ``rate`` Hz.
 
-    The analog samples per frame ``r`` stay; samples keep their time from
-    the first frame on (cut at the end, or the last sample held).
+    Analog samples keep their time: sample ``s`` of the source lies at
+    ``s / analog_rate`` seconds from the first frame.  At the source's point
+    rate the samples stay as they are (cut at the new end, or the last one
+    held to fill a longer clip).  At another point rate there must be a whole
+    number of samples per frame: the source's analog rate is kept when it is
+    a whole multiple of ``rate``, else the nearest whole multiple (at least
+    one sample per frame) becomes ``ANALOG:RATE``, and every channel is
+    resampled onto the new sample times by linear interpolation (the last
+    sample held past the source's end).
     """
     parameters = c3d["parameters"]
     analogs = np.asarray(c3d["data"]["analogs"], dtype=np.float64)  # (1, A, S)
@@ -690,21 +700,42 @@ def _fit_analogs(c3d, n_frames: int, rate: float) -> None:
     old_point_rate = _first_float(parameters["POINT"].get("RATE")) or rate
     old_analog_rate = _first_float(parameters["ANALOG"].get("RATE"))
     if analogs.shape[1] and src_frames:
-        per_frame = analogs.shape[2] // src_frames
+        src_per_frame = analogs.shape[2] // src_frames
     else:
-        per_frame = int(round(old_analog_rate / old_point_rate)) if old_point_rate > 0 else 0
+        src_per_frame = int(round(old_analog_rate / old_point_rate)) if old_point_rate > 0 else 0
+    same_rate = abs(rate - old_point_rate) <= 1e-6 * rate
+    if same_rate or src_per_frame == 0:
+        per_frame = src_per_frame
+    else:
+        # the source's samples per second, as its frames lay them out
+        per_frame = max(1, int(round(src_per_frame * old_point_rate / rate)))
     samples = n_frames * per_frame
-    if analogs.shape[2] >= samples:
-        analogs = analogs[:, :, :samples]
-    elif analogs.shape[2] > 0:
-        analogs = np.pad(analogs, ((0, 0), (0, 0), (0, samples - analogs.shape[2])), mode="edge")
-    else:
+    if analogs.shape[2] == 0:
         analogs = np.zeros((1, analogs.shape[1], samples))
+    elif same_rate:
+        if analogs.shape[2] >= samples:
+            analogs = analogs[:, :, :samples]
+        else:
+            analogs = np.pad(analogs, ((0, 0), (0, 0), (0, samples - analogs.shape[2])), mode="edge")
+    else:
+        analogs = _resample_analogs(analogs, src_per_frame * old_point_rate, per_frame * float(rate), samples)
     c3d["data"]["analogs"] = analogs
     _cut_to_used(parameters["ANALOG"], analogs.shape[1])
-    if "RATE" in parameters["ANALOG"] and per_frame:
+    if per_frame and ("RATE" in parameters["ANALOG"] or not same_rate):
         # ezc3d checks ANALOG:RATE == samples per frame x POINT:RATE
-        parameters["ANALOG"]["RATE"]["value"] = np.array([per_frame * float(rate)])
+        _set_parameter(parameters["ANALOG"], "RATE", 4, np.array([per_frame * float(rate)]))
+
+
+def _resample_analogs(analogs: np.ndarray, old_rate: float, new_rate: float, samples: int) -> np.ndarray:
+    """``analogs`` (1, A, S) sampled at ``old_rate`` Hz, linearly interpolated
+    at ``samples`` times ``j / new_rate`` (both grids start at the first
+    frame); times past the last sample take its value."""
+    last = analogs.shape[2] - 1
+    pos = np.clip(np.arange(samples) * (old_rate / new_rate), 0.0, last)
+    i0 = np.floor(pos).astype(np.int64)
+    i1 = np.minimum(i0 + 1, last)
+    w = pos - i0
+    return analogs[:, :, i0] * (1.0 - w) + analogs[:, :, i1] * w
 
 
 def _cut_to_used(analog: dict, n_channels: int) -> None:

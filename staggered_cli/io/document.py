@@ -33,6 +33,7 @@ import io
 import json
 import math
 import re
+import struct
 import zipfile
 import zlib
 from typing import Any
@@ -370,14 +371,35 @@ def _parse_npy_header(head: bytes, aname: str, name: str) -> tuple[np.dtype, boo
     return dtype, fortran, shape, start + hlen
 
 
+#: What zipfile raises on a damaged zip, at opening or reading a member:
+#: besides BadZipFile, NotImplementedError ("zip file version 10.6", flag
+#: bits), ValueError ("negative seek value"), EOFError, OSError, struct and
+#: zlib errors.  (DataError is none of these: our own refusals pass.)
+_ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    NotImplementedError,
+    ValueError,
+    EOFError,
+    OSError,
+    OverflowError,
+    struct.error,
+    zlib.error,
+)
+
+
 def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     try:
-        zf = zipfile.ZipFile(io.BytesIO(data))
-    except zipfile.BadZipFile as err:
-        raise _fail(name, f"truncated or corrupt NPZ document ({err})") from None
-    except (OSError, ValueError, EOFError) as err:
-        raise _fail(name, f"truncated or corrupt NPZ document ({err})") from None
-    with zf:
+        return _read_npz(data, name)
+    except DataError:
+        raise
+    except _ZIP_ERRORS as err:
+        reason = " ".join(str(err).split())[:80] or type(err).__name__
+        raise _fail(name, f"truncated or corrupt NPZ document ({reason})") from None
+
+
+def _read_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
         infos = zf.infolist()
         if len(infos) > MAX_ARRAYS + 1:
             raise _fail(name, f"document has {len(infos)} members (at most {MAX_ARRAYS + 1})")
@@ -413,27 +435,18 @@ def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
             )
         if MANIFEST_MEMBER not in seen:
             raise _fail(name, f"not a {FORMAT_NAME} document (no {MANIFEST_MEMBER})")
-        try:
-            env = _check_envelope(
-                _load_json_text(zf.read(MANIFEST_MEMBER), name, MANIFEST_MEMBER), name, MANIFEST_MEMBER
-            )
-            declared = _check_index(env["arrays"], name)
-            expected = {a + ".npy" for a in declared} | {MANIFEST_MEMBER}
-            extra = sorted(set(seen) - expected)
-            missing = sorted(expected - set(seen))
-            if extra:
-                raise _fail(name, f"unexpected member {extra[0]!r}")
-            if missing:
-                raise _fail(name, f"missing member {missing[0]!r}")
-            arrays = {}
-            for aname, (dtype, shape, nbytes) in declared.items():
-                arrays[aname] = _read_npy_member(zf, seen[aname + ".npy"], aname, dtype, shape, nbytes, name)
-        except zipfile.BadZipFile as err:
-            raise _fail(name, f"corrupt NPZ document ({err})") from None
-        except (OSError, EOFError, zipfile.LargeZipFile) as err:
-            raise _fail(name, f"corrupt NPZ document ({err})") from None
-        except zlib.error as err:
-            raise _fail(name, f"corrupt NPZ document ({err})") from None
+        env = _check_envelope(_load_json_text(zf.read(MANIFEST_MEMBER), name, MANIFEST_MEMBER), name, MANIFEST_MEMBER)
+        declared = _check_index(env["arrays"], name)
+        expected = {a + ".npy" for a in declared} | {MANIFEST_MEMBER}
+        extra = sorted(set(seen) - expected)
+        missing = sorted(expected - set(seen))
+        if extra:
+            raise _fail(name, f"unexpected member {extra[0]!r}")
+        if missing:
+            raise _fail(name, f"missing member {missing[0]!r}")
+        arrays = {}
+        for aname, (dtype, shape, nbytes) in declared.items():
+            arrays[aname] = _read_npy_member(zf, seen[aname + ".npy"], aname, dtype, shape, nbytes, name)
     return env["manifest"], arrays
 
 

@@ -103,6 +103,13 @@ def _disturbed(pos: np.ndarray, path: np.ndarray, t: np.ndarray, c, blend: float
     return bool(np.nanmax(d) > tolerance) if np.isfinite(d).any() else False
 
 
+def _check_blend(blend: float, same_rate: bool) -> float:
+    # resampled frames differ from the source by interpolation, which is large
+    # where a lifting foot moves fast: judge a resampled bake inside the
+    # constraint only, where a planted point is still
+    return blend if same_rate else 0.0
+
+
 def _tolerance(size: float, same_rate: bool) -> float:
     # resampled output differs from the source by interpolation alone, which a
     # planted point (nearly still) keeps far below a thousandth of the figure
@@ -122,6 +129,16 @@ def _chain_changed(sk, changed: np.ndarray, t: np.ndarray, c, blend: float) -> b
         chain.append(j)
         j = int(sk.parents[j])
     return bool(changed[np.ix_(window, chain)].any())
+
+
+def _linked(sk, a: str, b: str) -> bool:
+    """Whether one joint is the other's parent (a foot and its toe)."""
+    ia, ib = sk.names.index(a), sk.names.index(b)
+    return ia != ib and (sk.parents[ia] == ib or sk.parents[ib] == ia)
+
+
+def _overlap(c, d, blend: float) -> bool:
+    return c.start - blend <= d.end + blend and d.start - blend <= c.end + blend
 
 
 def _contact_layer(
@@ -146,18 +163,35 @@ def _contact_layer(
     _, wp = forward_kinematics(sk, rot, tr)
     src_wr, src_wp = src.world()
     size = figure_height(sk, src_wp, end_site_positions(sk, src_wr, src_wp))
-    todo, targets = [], []
-    for c in candidates:
+
+    def target(c):
         j = sk.names.index(c.joint)
         path = _source_path(src_wp[:, j], doc.frame_time, c, t)
-        if not _disturbed(wp[:, j], path, t, c, blend, _tolerance(size, same_rate)):
-            continue
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
         offset = (wp[inside, j] - path[inside]).mean(axis=0) if inside.any() else np.zeros(3)
-        todo.append(c)
-        targets.append(path + offset)
+        return path, path + offset
+
+    todo = [
+        c
+        for c in candidates
+        if _disturbed(
+            wp[:, sk.names.index(c.joint)],
+            target(c)[0],
+            t,
+            c,
+            _check_blend(blend, same_rate),
+            _tolerance(size, same_rate),
+        )
+    ]
+    # a foot and its toe share a chain: solving one moves the other, so a
+    # planted neighbour overlapping a repaired constraint is held on its path too
+    for c in list(todo):
+        for d in doc.constraints:
+            if d not in todo and _linked(sk, c.joint, d.joint) and _overlap(c, d, blend):
+                todo.append(d)
     if not todo:
         return rot
+    targets = [target(c)[1] for c in todo]
     from ..ik import ik_layer
 
     return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=targets)
@@ -187,7 +221,7 @@ def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
             raise UsageError(f"constraint on unknown marker {c.joint!r}")
         m = src.labels.index(c.joint)
         path = _source_path(src.points[:, m], doc.frame_time, c, t)
-        if not _disturbed(pts[:, m], path, t, c, blend, tolerance):
+        if not _disturbed(pts[:, m], path, t, c, _check_blend(blend, same_rate), tolerance):
             continue
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
         seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(path), axis=1)

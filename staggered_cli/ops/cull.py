@@ -118,8 +118,10 @@ def add_pose(doc: Document, time: float) -> Document:
     collapsed to zero (the knot returns to its pose time, with the value the
     motion has there), so the poses' knots stay in order; a warning names them.
     """
-    if not np.isfinite(time) or not 0.0 <= time <= doc.duration + 1e-9:
+    half = 0.5 * doc.frame_time  # times as info prints them (4 decimals) must be accepted
+    if not np.isfinite(time) or not -half <= time <= doc.duration + half:
         raise UsageError(f"--add-time must lie within the clip (0 to {doc.duration:.4f} s), got {time}")
+    time = float(min(max(time, 0.0), doc.duration))
     if np.any(np.abs(doc.pose_t - time) < 1e-9):
         raise UsageError(f"there is already a pose at {time:.4f} s")
     k_new = int(np.searchsorted(doc.pose_t, time))

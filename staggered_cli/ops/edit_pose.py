@@ -23,6 +23,10 @@ from ..document import Document, check_pose_index
 from ..errors import UsageError
 from ..representation import ROTATION, TRANSLATION, Track, evaluate, pose_arrays
 
+#: Bounds of geometric edits: beyond them a value is a typo, not a pose.
+MAX_TRANSLATE = 1000.0  # figure heights
+MAX_EXAGGERATE = 100.0
+
 
 def _oplus(kind: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a + b if kind == TRANSLATION else quat.mul(a, b)
@@ -101,9 +105,13 @@ def offsets(
         ti, i = _find(doc, name, ROTATION)
         deltas[ti][i] = quat.from_euler(np.asarray(xyz, dtype=float), "XYZ")
         touched[ti] = True
+    size = doc.source.figure_height()
     for name, xyz in translate.items():
         ti, i = _find(doc, name, TRANSLATION)
-        deltas[ti][i] = np.asarray(xyz, dtype=float)
+        xyz = np.asarray(xyz, dtype=float)
+        if not np.all(np.isfinite(xyz)) or np.abs(xyz).max() > MAX_TRANSLATE * size:
+            raise UsageError(f"--translate {name}: at most {MAX_TRANSLATE:g} figure heights ({MAX_TRANSLATE * size:g})")
+        deltas[ti][i] = xyz
         touched[ti] = True
     return [d if t else None for d, t in zip(deltas, touched, strict=True)]
 
@@ -189,8 +197,8 @@ def edit_pose(
     if rotate or translate:
         doc = _apply_delta(doc, k, offsets(doc, rotate, translate), on)
     if exaggerate is not None:
-        if not np.isfinite(exaggerate):
-            raise UsageError("--exaggerate must be a finite number")
+        if not np.isfinite(exaggerate) or abs(exaggerate) > MAX_EXAGGERATE:
+            raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
         ref = reference_values(doc, k, relative_to, on)
         cur = pose_values(doc, k, on)
         mask = exaggeration_mask(doc, joints, subtree)

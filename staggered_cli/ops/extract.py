@@ -54,8 +54,11 @@ from ..motion import BvhMotion, MarkerMotion
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
-#: A contact change gets a pose within this many frames.
-CONTACT_POSE_FRAMES = 2
+#: Contact changes at most this many seconds apart share one pose, placed
+#: between them (a duration, so 30 and 120 Hz captures of one motion keep the
+#: same contact poses: 1 frame at 30 Hz, 4 at 120 Hz; every change is then
+#: within 2 frames of its pose at any rate).
+CONTACT_MERGE = 1.0 / 30.0
 #: Default refinement search window, seconds (paper: 0.25 s).
 DEFAULT_REFINE_WINDOW = 0.25
 
@@ -85,15 +88,15 @@ def contact_boundaries(constraints, n_frames: int, rate: float, breaks: np.ndarr
     return np.unique(np.array(frames, dtype=int))
 
 
-def contact_poses(boundaries: np.ndarray, frames: int = 2) -> np.ndarray:
-    """Pose frames that put a pose within ``frames`` frames of every contact
-    change: each change gets its own pose, except that changes at most
-    ``2 · frames`` apart share one in the middle of them."""
+def contact_poses(boundaries: np.ndarray, merge: int = 4) -> np.ndarray:
+    """Pose frames for the contact changes: each change gets its own pose,
+    except that changes at most ``merge`` frames apart share one in the
+    middle of them (so each is within ``merge / 2`` frames of its pose)."""
     out = []
     b = np.sort(np.asarray(boundaries, dtype=int))
     i = 0
     while i < len(b):
-        j = int(np.searchsorted(b, b[i] + 2 * frames, side="right"))
+        j = int(np.searchsorted(b, b[i] + merge, side="right"))
         out.append((b[i] + b[j - 1]) // 2)
         i = j
     return np.array(out, dtype=int)
@@ -198,7 +201,7 @@ def extract(
     contact_weight = float(ev.weights.max()) if len(ev.weights) else 0.0
     P = signals.pose_probability(ev, contact, contact_weight, filter_width)
 
-    on_contact = contact_poses(boundaries, CONTACT_POSE_FRAMES)
+    on_contact = contact_poses(boundaries, max(int(round(CONTACT_MERGE * rate + 1e-9)), 0))
     cand = signals.local_maxima(P)
     if len(on_contact):
         # a maximum of P this close to a contact change is that change

@@ -20,7 +20,14 @@ from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, 
 
 log = logging.getLogger(__name__)
 
+MAX_POWER = 10.0  # depth**power beyond this is no longer a succession pattern
 _MARGIN_FRAMES = 0.5  # clamped knots keep at least this many frames from a neighbouring knot
+
+
+def _longest_shift(doc: Document) -> float:
+    """The largest timing change an option may ask for: the clip's length
+    (at least a second, so that short clips accept ordinary values)."""
+    return max(doc.duration, 1.0)
 
 
 def select_poses(
@@ -236,12 +243,17 @@ def succession(
     """
     if not np.isfinite(offset):
         raise UsageError("--offset must be a finite number of seconds")
-    if not np.isfinite(power) or power <= 0:
-        raise UsageError(f"--power must be a positive number, got {power}")
+    if not np.isfinite(power) or not 0 < power <= MAX_POWER:
+        raise UsageError(f"--power must be a positive number up to {MAX_POWER}, got {power}")
+    if abs(offset) > _longest_shift(doc):
+        raise UsageError(f"--offset must not exceed {_longest_shift(doc):.4f} s (the clip's length), got {offset}")
     depth = _depths(doc, joint, chain)
     if poses is None:
         poses = select_poses(doc)
-    step = np.where(depth > 0, offset * np.abs(depth.astype(float)) ** power, 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        step = np.where(depth > 0, offset * np.abs(depth.astype(float)) ** power, 0.0)
+    if not np.all(np.isfinite(step)) or np.abs(step).max(initial=0.0) > _longest_shift(doc):
+        raise UsageError(f"--offset {offset:g} with --power {power:g} shifts knots beyond the clip's length")
     delta = poses[:, None] * step[None, :]
     return change_refinements(doc, delta, clamp=clamp)
 
@@ -285,8 +297,8 @@ def randomize(
     """Random offsets: ``r[k,i] += uniform(-tau, tau)`` for the chosen joints
     (all by default; with ``subtree`` their descendants too), reproducible by
     ``seed``."""
-    if not np.isfinite(tau) or tau < 0:
-        raise UsageError(f"--tau must be a non-negative number of seconds, got {tau}")
+    if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
+        raise UsageError(f"--tau must be between 0 and {_longest_shift(doc):.4f} s (the clip's length), got {tau}")
     names = _target_names(doc)
     if joints:
         chosen = []
