@@ -45,6 +45,10 @@ class Constraint:
     time (None: the same as ``start`` and ``end``).  Timing edits move a
     constraint with the motion; the contact layer then follows the
     captured path of its source span, stretched onto the new one.
+
+    ``pin``: the user planted it (``constraints --add``): bake holds the
+    point at one place (its mean position over the constraint) whether or
+    not an edit disturbed it, rather than following the capture.
     """
 
     joint: str
@@ -52,6 +56,7 @@ class Constraint:
     end: float
     source_start: float | None = None
     source_end: float | None = None
+    pin: bool = False
 
     @property
     def source_span(self) -> tuple[float, float]:
@@ -65,7 +70,7 @@ class Constraint:
         start, end = (float(x) for x in np.interp([self.start, self.end], old_t, new_t))
         if (start, end) == (self.start, self.end):
             return self
-        return Constraint(self.joint, start, end, s0, s1)
+        return Constraint(self.joint, start, end, s0, s1, self.pin)
 
 
 @dataclass(frozen=True)
@@ -373,10 +378,18 @@ _TRACK_ARRAYS = (
 )
 
 
+def _flag(value, what: str) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError(f"{what} must be true or false")
+    return value
+
+
 def _constraint_entry(c: Constraint) -> dict:
     entry = {"joint": c.joint, "start": float(c.start), "end": float(c.end)}
     if c.source_span != (float(c.start), float(c.end)):
         entry["source_start"], entry["source_end"] = c.source_span
+    if c.pin:
+        entry["pin"] = True
     return entry
 
 
@@ -463,6 +476,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 float(c["end"]),
                 None if c.get("source_start") is None else float(c["source_start"]),
                 None if c.get("source_end") is None else float(c["source_end"]),
+                _flag(c.get("pin", False), "constraint pin"),
             )
             for c in manifest.get("constraints", [])
         )

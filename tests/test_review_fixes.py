@@ -139,3 +139,53 @@ def test_priorities_follow_the_poses_that_remain(walk):
     f = np.rint(culled.pose_t[1:-1] / doc.frame_time).astype(int)
     np.testing.assert_allclose(culled.priority[1:-1], P[f] * (culled.pose_t[2:] - culled.pose_t[:-2]))
     assert np.isinf(culled.priority[[0, -1]]).all()
+
+
+def test_a_constraint_added_by_hand_pins_its_joint(walk, tmp_path):
+    """constraints --add means 'planted here': bake holds the joint at one
+    place even though no edit disturbed it (detected contacts follow the
+    capture instead)."""
+    from click.testing import CliRunner
+
+    from staggered_cli.cli.main import cli
+    from staggered_cli.document import to_parts
+    from staggered_cli.io.document import document_bytes, parse_document
+
+    m, doc = walk
+    c = next(x for x in doc.constraints if x.joint == "LeftFoot" and x.end - x.start > 0.3)
+    # the flat-foot middle of the stance: at heel strike and heel-off the
+    # ankle's mean position is beyond the leg's reach
+    quarter = 0.25 * (c.end - c.start)
+    middle = (round(c.start + quarter, 4), round(c.end - quarter, 4))
+    path = tmp_path / "w.stag"
+    path.write_bytes(document_bytes(*to_parts(doc), "npz"))
+    index = doc.constraints.index(c)
+    out = tmp_path / "pinned.stag"
+    r = CliRunner().invoke(
+        cli,
+        [
+            "constraints",
+            str(path),
+            "--remove",
+            str(index),
+            "--add",
+            f"LeftFoot@{middle[0]}:{middle[1]}",
+            "-o",
+            str(out),
+        ],
+    )
+    assert r.exit_code == 0, r.stderr
+    pinned = D.from_parts(*parse_document(out.read_bytes(), str(out)))
+    assert any(x.pin for x in pinned.constraints)
+    baked = bake(pinned)
+    from staggered_cli.motion import BvhMotion
+
+    j = m.skeleton.index("LeftFoot")
+    t = doc.frame_times
+    inside = (t >= middle[0]) & (t <= middle[1])
+    size = m.figure_height()
+    before = m.world()[1][inside, j]
+    after = BvhMotion(m.skeleton, baked.channels, m.frame_time).world()[1][inside, j]
+    spread = lambda p: np.linalg.norm(p - p.mean(axis=0), axis=1).max() / size  # noqa: E731
+    assert spread(before) > 0.005  # the captured ankle moves
+    assert spread(after) < 0.1 * spread(before)

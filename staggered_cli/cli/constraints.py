@@ -172,7 +172,7 @@ def constraints(
         cons = tuple(c for i, c in enumerate(cons) if i not in drop)
     for joint, start, end in spans:
         start, end = _check_span(doc, joint, start, end)
-        cons = cons + (Constraint(joint, start, end),)
+        cons = cons + (Constraint(joint, start, end, pin=True),)  # the user says it is planted
     cons = tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint)))
     write_document(replace(doc, constraints=cons), output, fmt, force)
     if show or as_json:

@@ -157,7 +157,7 @@ def _contact_layer(
         changed = (1.0 - np.abs(np.sum(rot * src.local_rotations(), axis=-1)) > 1e-12) | np.any(
             np.abs(tr - src.local_translations()) > 1e-9, axis=-1
         )
-        candidates = [c for c in candidates if _chain_changed(sk, changed, t, c, blend)]
+        candidates = [c for c in candidates if c.pin or _chain_changed(sk, changed, t, c, blend)]
     if not candidates:
         return rot
     _, wp = forward_kinematics(sk, rot, tr)
@@ -174,7 +174,8 @@ def _contact_layer(
     todo = [
         c
         for c in candidates
-        if _disturbed(
+        if c.pin
+        or _disturbed(
             wp[:, sk.names.index(c.joint)],
             target(c)[0],
             t,
@@ -185,13 +186,13 @@ def _contact_layer(
     ]
     # a foot and its toe share a chain: solving one moves the other, so a
     # planted neighbour overlapping a repaired constraint is held on its path too
-    for c in list(todo):
+    for c in [c for c in todo if not c.pin]:  # a pinned joint is the user's word: its neighbours follow it
         for d in doc.constraints:
             if d not in todo and _linked(sk, c.joint, d.joint) and _overlap(c, d, blend):
                 todo.append(d)
     if not todo:
         return rot
-    targets = [target(c)[1] for c in todo]
+    targets = [None if c.pin else target(c)[1] for c in todo]  # None: held at its mean position
     from ..ik import ik_layer
 
     return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=targets)
@@ -221,7 +222,13 @@ def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
             raise UsageError(f"constraint on unknown marker {c.joint!r}")
         m = src.labels.index(c.joint)
         path = _source_path(src.points[:, m], doc.frame_time, c, t)
-        if not _disturbed(pts[:, m], path, t, c, _check_blend(blend, same_rate), tolerance):
+        if c.pin:  # planted by the user: held at its mean position over the constraint
+            inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
+            seen = pts[inside, m][np.all(np.isfinite(pts[inside, m]), axis=1)]
+            if not len(seen):
+                continue
+            path = np.broadcast_to(seen.mean(axis=0), path.shape)
+        elif not _disturbed(pts[:, m], path, t, c, _check_blend(blend, same_rate), tolerance):
             continue
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
         seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(path), axis=1)
