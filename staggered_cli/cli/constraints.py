@@ -65,7 +65,29 @@ def _detect(doc, joints: list[str] | None, min_contact: float | None, tolerance:
         tolerance = float(params.get("contact_tolerance", DEFAULT_TOLERANCE))
     names = set(contact_joints(doc.source, joints))
     found = detect_contacts(doc.source, sorted(names), min_duration=min_contact, tolerance=tolerance)
-    return tuple(c for c in doc.constraints if c.joint not in names) + tuple(found)
+    return tuple(c for c in doc.constraints if c.joint not in names) + tuple(_retimed(doc, f) for f in found)
+
+
+def _retimed(doc, found):
+    """A constraint detected on the source, moved into the document's time.
+
+    Detection runs on the captured motion, in source time.  Where timing
+    edits moved the joint's earlier constraints, their source and current
+    spans give the joint's time map; the new constraint follows it (its
+    source span stays the detected one).
+    """
+    import numpy as np
+
+    pairs = [(0.0, 0.0), (doc.duration, doc.duration)]
+    for c in doc.constraints:
+        if c.joint == found.joint:
+            (s0, s1), (t0, t1) = c.source_span, (c.start, c.end)
+            pairs += [(s0, t0), (s1, t1)]
+    src, cur = (np.array(x) for x in zip(*sorted(pairs), strict=True))
+    start, end = (float(x) for x in np.interp([found.start, found.end], src, cur))
+    if (start, end) == (found.start, found.end):
+        return found
+    return type(found)(found.joint, start, end, found.start, found.end)
 
 
 def _table(constraints) -> str:
