@@ -127,6 +127,12 @@ class Document:
         return (self.n_frames - 1) * self.frame_time
 
     @property
+    def target_names(self) -> tuple[str, ...]:
+        """Names of what the variables drive: the skeleton's joints, or the markers."""
+        src = self.source
+        return tuple(src.skeleton.names) if isinstance(src, BvhMotion) else tuple(src.labels)
+
+    @property
     def variable_names(self) -> tuple[str, ...]:
         return tuple(n for tr in self.tracks for n in tr.names)
 
@@ -325,11 +331,18 @@ def reference_channels(doc: Document, t: np.ndarray) -> np.ndarray:
     rot_cols = [c for _, cols, _ in rotation_columns(src.skeleton) for c in cols]
     ch = ch.copy()
     ch[:, rot_cols] = np.unwrap(ch[:, rot_cols], period=360.0, axis=0)
-    f = np.clip(np.asarray(t) / doc.frame_time, 0, src.n_frames - 1)
+    return at_times(ch, doc.frame_time, t)
+
+
+def at_times(values: np.ndarray, frame_time: float, t: np.ndarray) -> np.ndarray:
+    """Frame values ``(T, ...)`` (frame k at ``k · frame_time`` seconds) at
+    times ``t`` (N,): linear between frames, held at the ends; NaN where a
+    neighbouring frame is NaN.  Returns (N, ...)."""
+    f = np.clip(np.asarray(t, dtype=float) / frame_time, 0, len(values) - 1)
     lo = np.floor(f).astype(int)
-    hi = np.minimum(lo + 1, src.n_frames - 1)
-    w = (f - lo)[:, None]
-    return ch[lo] * (1 - w) + ch[hi] * w
+    hi = np.minimum(lo + 1, len(values) - 1)
+    w = (f - lo).reshape((-1,) + (1,) * (values.ndim - 1))
+    return values[lo] * (1.0 - w) + values[hi] * w
 
 
 def reprioritized(doc: Document) -> Document:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..document import Document, local_pose, marker_points, output_times, reference_channels
+from ..document import Document, at_times, local_pose, marker_points, output_times, reference_channels
 from ..document import same_rate as is_same_rate
 from ..errors import UsageError
 from ..motion import (
@@ -23,7 +23,7 @@ from ..motion import (
     MarkerMotion,
     channels_from_local,
 )
-from ..skeleton import end_site_positions, figure_height, forward_kinematics
+from ..skeleton import forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
@@ -85,11 +85,7 @@ def _source_path(points: np.ndarray, frame_time: float, c, t: np.ndarray) -> np.
     span = c.end - c.start
     inside = s0 + (t - c.start) * ((s1 - s0) / span if span > 0 else 0.0)
     s = np.where(t < c.start, t + (s0 - c.start), np.where(t > c.end, t + (s1 - c.end), inside))
-    f = np.clip(s / frame_time, 0, len(points) - 1)
-    lo = np.floor(f).astype(int)
-    hi = np.minimum(lo + 1, len(points) - 1)
-    w = (f - lo)[:, None]
-    return points[lo] * (1.0 - w) + points[hi] * w
+    return at_times(points, frame_time, s)
 
 
 def _disturbed(pos: np.ndarray, path: np.ndarray, t: np.ndarray, c, blend: float, tolerance: float) -> bool:
@@ -161,8 +157,8 @@ def _contact_layer(
     if not candidates:
         return rot
     _, wp = forward_kinematics(sk, rot, tr)
-    src_wr, src_wp = src.world()
-    size = figure_height(sk, src_wp, end_site_positions(sk, src_wr, src_wp))
+    src_wp = src.world()[1]
+    size = src.figure_height()  # cached with the clip's world positions
 
     def target(c):
         j = sk.names.index(c.joint)

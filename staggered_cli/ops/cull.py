@@ -11,7 +11,7 @@ import logging
 
 import numpy as np
 
-from ..document import Document, reprioritized
+from ..document import Document, check_pose_index, reprioritized
 from ..errors import UsageError
 from ..representation import evaluate_at, knots_from_poses, pose_arrays, restructure
 
@@ -56,9 +56,7 @@ def choose(
     if select is not None:
         sel = np.zeros(K, dtype=bool)
         for k in select:
-            if not -K <= k < K:
-                raise UsageError(f"pose {k} is out of range (the document has poses 0 to {K - 1})")
-            sel[k % K] = True
+            sel[check_pose_index(doc, k)] = True
         mask &= sel
     if not ignore_contacts:
         mask |= contact_poses(doc)

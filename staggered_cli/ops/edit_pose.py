@@ -88,11 +88,6 @@ def _identity_deltas(doc: Document) -> list[np.ndarray]:
     return [np.zeros((tr.n_vars, 3)) if tr.kind == TRANSLATION else quat.identity((tr.n_vars,)) for tr in doc.tracks]
 
 
-def _names_to_targets(doc: Document) -> list[str]:
-    src = doc.source
-    return list(src.skeleton.names) if doc.kind == "bvh" else list(src.labels)
-
-
 def offsets(
     doc: Document, rotate: dict[str, tuple[float, float, float]], translate: dict[str, tuple[float, float, float]]
 ) -> list[np.ndarray | None]:
@@ -121,7 +116,7 @@ def _find(doc: Document, name: str, kind: str) -> tuple[int, int]:
     for ti, tr in enumerate(doc.tracks):
         if tr.kind == kind and key in tr.names:
             return ti, tr.names.index(key)
-    targets = _names_to_targets(doc)
+    targets = list(doc.target_names)
     if name in targets:
         what = "rotation channels" if kind == ROTATION else "position channels"
         raise UsageError(f"{name!r} has no {what} to edit")
@@ -132,7 +127,7 @@ def joint_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[n
     """Per track, a (V,) mask of the variables an edit may touch (partial poses)."""
     if not joints:
         return [np.ones(tr.n_vars, dtype=bool) for tr in doc.tracks]
-    targets = _names_to_targets(doc)
+    targets = list(doc.target_names)
     chosen: list[int] = []
     for name in joints:
         if name not in targets:

@@ -14,9 +14,10 @@ import logging
 
 import numpy as np
 
-from ..document import Document, reprioritized
+from ..document import Document, check_pose_index, reprioritized
 from ..errors import KnotOrderError, UsageError
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
+from .edit_pose import joint_mask
 
 log = logging.getLogger(__name__)
 
@@ -44,9 +45,7 @@ def select_poses(
     if poses is not None:
         mask[:] = False
         for k in poses:
-            if not -K <= k < K:
-                raise UsageError(f"pose {k} is out of range (the document has poses 0 to {K - 1})")
-            mask[k % K] = True
+            mask[check_pose_index(doc, k)] = True
     if time_range is not None:
         a, b = time_range
         if np.isnan(a) or np.isnan(b) or a > b:
@@ -218,12 +217,6 @@ def _warn_far_knots(doc: Document, tr: Track, before: np.ndarray, refine: np.nda
         log.warning("pose %d: extreme knots closer to a neighbouring pose than to their own: %s", k, which)
 
 
-def variables_of_joints(doc: Document, joints: np.ndarray) -> np.ndarray:
-    """Boolean mask (V,) of the variables that drive any of ``joints`` (indices)."""
-    targets = np.concatenate([tr.targets for tr in doc.tracks]) if doc.tracks else np.zeros(0, dtype=int)
-    return np.isin(targets, joints)
-
-
 def succession(
     doc: Document,
     offset: float,
@@ -263,7 +256,7 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
     V = len(doc.variable_names)
     targets = np.concatenate([tr.targets for tr in doc.tracks])
     if chain:
-        names = _target_names(doc)
+        names = list(doc.target_names)
         depth_of = {}
         for d, name in enumerate(chain):
             if name not in names:
@@ -277,11 +270,6 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
     sk = doc.source.skeleton
     depth = sk.depth_below(sk.index(joint))
     return depth[targets] if V else np.zeros(0, dtype=int)
-
-
-def _target_names(doc: Document) -> list[str]:
-    src = doc.source
-    return list(src.skeleton.names) if doc.kind == "bvh" else list(src.labels)
 
 
 def randomize(
@@ -299,17 +287,7 @@ def randomize(
     ``seed``."""
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
         raise UsageError(f"--tau must be between 0 and {_longest_shift(doc):.4f} s (the clip's length), got {tau}")
-    names = _target_names(doc)
-    if joints:
-        chosen = []
-        for name in joints:
-            if name not in names:
-                raise UsageError(f"unknown joint or marker {name!r}")
-            j = names.index(name)
-            chosen.extend(doc.source.skeleton.subtree(j).tolist() if subtree and doc.kind == "bvh" else [j])
-        mask = variables_of_joints(doc, np.array(chosen))
-    else:
-        mask = np.ones(len(doc.variable_names), dtype=bool)
+    mask = np.concatenate(joint_mask(doc, joints, subtree))  # the same partial poses as edit-pose
     if poses is None:
         poses = select_poses(doc)
     rng = np.random.default_rng(seed)
