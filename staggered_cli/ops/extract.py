@@ -47,18 +47,23 @@ from __future__ import annotations
 import numpy as np
 
 from .. import contacts as contact_detection
-from .. import signals
-from ..document import Document, from_motion
+from .. import ik, placement, signals
+from ..document import Document, dense_variables, from_motion
 from ..errors import UsageError
 from ..motion import BvhMotion, MarkerMotion
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
-#: Contact changes at most this many seconds apart share one pose, placed
-#: between them (a duration, so 30 and 120 Hz captures of one motion keep the
-#: same contact poses: 1 frame at 30 Hz, 4 at 120 Hz; every change is then
-#: within 2 frames of its pose at any rate).
-CONTACT_MERGE = 1.0 / 30.0
+#: Poses are placed on a grid of this many frames per second, then moved to
+#: the best frame nearby.
+PLACEMENT_RATE = 30.0
+#: The longest segment placement considers, in average segments.
+SEGMENT_REACH = 4.0
+#: A pose that covers contact changes costs this much less in placement.
+CONTACT_REWARD = 0.15
+REFINE_GAIN = 0.4
+#: Default fewest seconds between two poses (issue 13).
+DEFAULT_MIN_SPACING = 0.1
 #: Default refinement search window, seconds (paper: 0.25 s).
 DEFAULT_REFINE_WINDOW = 0.25
 
@@ -71,35 +76,6 @@ def _check(name: str, value: float, *, positive: bool = False) -> float:
     if not np.isfinite(value) or value < 0 or (positive and value == 0):
         raise UsageError(f"{name} must be a {'positive' if positive else 'non-negative'} number, got {value}")
     return value
-
-
-def contact_boundaries(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> np.ndarray:
-    """Frames (sorted, unique) where a contact starts or ends, leaving out the
-    clip's first and last frame and frames next to a break (a T-pose frame):
-    there nothing changes, the clip just begins or ends."""
-    frames = []
-    for c in constraints:
-        s = int(round(c.start * rate))
-        e = int(round(c.end * rate))
-        if s > 0 and not breaks[s - 1]:
-            frames.append(s)
-        if e < n_frames - 1 and not breaks[e]:
-            frames.append(e)
-    return np.unique(np.array(frames, dtype=int))
-
-
-def contact_poses(boundaries: np.ndarray, merge: int = 4) -> np.ndarray:
-    """Pose frames for the contact changes: each change gets its own pose,
-    except that changes at most ``merge`` frames apart share one in the
-    middle of them (so each is within ``merge / 2`` frames of its pose)."""
-    out = []
-    b = np.sort(np.asarray(boundaries, dtype=int))
-    i = 0
-    while i < len(b):
-        j = int(np.searchsorted(b, b[i] + merge, side="right"))
-        out.append((b[i] + b[j - 1]) // 2)
-        i = j
-    return np.array(out, dtype=int)
 
 
 def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndarray:
@@ -143,6 +119,354 @@ def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndar
     return out
 
 
+def contact_clusters(boundaries: np.ndarray, reach: int, n_frames: int) -> list[np.ndarray]:
+    """Contact changes grouped so that one pose can cover each group: a pose
+    covers a change within ``reach`` frames of it.  Returns, per cluster, the
+    frames from which a pose covers all its changes (sorted)."""
+    out = []
+    b = np.sort(np.asarray(boundaries, dtype=int))
+    i = 0
+    while i < len(b):
+        j = int(np.searchsorted(b, b[i] + 2 * reach, side="right"))
+        lo, hi = max(int(b[j - 1]) - reach, 0), min(int(b[i]) + reach, n_frames - 1)
+        out.append(np.arange(lo, hi + 1))
+        i = j
+    return out
+
+
+def seed_poses(
+    P: np.ndarray,
+    clusters: list[np.ndarray],
+    gate: np.ndarray,
+    forced: np.ndarray,
+    spacing: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The poses every placement keeps, and how many poses the clip gets.
+
+    Parameters
+    ----------
+    P : (T,) pose probability.
+    clusters : per contact cluster, the frames whose pose covers its changes.
+    gate : (T,) bool, where a maximum of ``P`` is significant.
+    forced : frames that always carry a pose (the ends, both sides of a break).
+    spacing : fewest frames between two poses (forced ones excepted).
+
+    Returns
+    -------
+    poses : sorted frames of the forced poses and one pose per contact
+        cluster, at the cluster's strongest ``P`` (the cluster pulls the
+        maximum onto itself); a cluster closer than ``spacing`` to a pose
+        already taken (clusters taken in order of ``P``) has none.
+    cluster : (K,) int, the cluster each pose covers, -1 for forced ones.
+    forced_mask : (K,) bool.
+    count : the number of poses of the clip: the significant local maxima
+        of ``P`` that are ``spacing`` apart (taken in order of ``P``) and the
+        forced poses, or the poses above when there are more.
+    """
+    taken = np.unique(np.asarray(forced, dtype=int))
+    owner = {int(f): -1 for f in taken}
+    peaks = [int(c[np.argmax(P[c])]) for c in clusters]
+    for n in sorted(range(len(clusters)), key=lambda n: (-P[peaks[n]], peaks[n])):
+        f = peaks[n]
+        if np.min(np.abs(taken - f)) >= spacing:
+            owner[f] = n
+            taken = np.sort(np.append(taken, f))
+    maxima = [int(m) for m in signals.local_maxima(P) if gate[m]]
+    counted = np.unique(np.asarray(forced, dtype=int))
+    for m in sorted(maxima, key=lambda m: (-P[m], m)):
+        if np.min(np.abs(counted - m)) >= spacing:
+            counted = np.sort(np.append(counted, m))
+    frames = np.array(sorted(owner), dtype=int)
+    cluster = np.array([owner[f] for f in frames.tolist()], dtype=int)
+    return frames, cluster, np.isin(frames, forced), max(len(counted), len(frames))
+
+
+def feature_sites(evidence: np.ndarray, gate: np.ndarray, reach: int) -> np.ndarray:
+    """Frames where a pose may go: within ``reach`` frames of a local maximum
+    of the combined local evidence (before the tent filter merges them) where
+    the significance gate passes."""
+    T = len(evidence)
+    near = np.zeros(T + 1, dtype=int)
+    m = signals.local_maxima(evidence)
+    m = m[gate[m]]
+    np.add.at(near, np.clip(m - reach, 0, T), 1)
+    np.add.at(near, np.clip(m + reach + 1, 0, T), -1)
+    return np.flatnonzero(np.cumsum(near)[:T] > 0)
+
+
+def insert_poses(cost: placement.SegmentCache, poses: np.ndarray, sites: np.ndarray, spacing: int, count: int) -> np.ndarray:
+    """Add poses at the sites that gain the spline layer most, one at a time,
+    until there are ``count`` (or no site keeps ``spacing``)."""
+    f = np.array(poses, dtype=int)
+    sites = np.unique(np.asarray(sites, dtype=int))
+    while len(f) < count:
+        j = np.searchsorted(f, sites)
+        inner = (j > 0) & (j < len(f))
+        s, j = sites[inner], j[inner]
+        far = (s - f[j - 1] >= spacing) & (f[j] - s >= spacing)
+        s, j = s[far], j[far]
+        if len(s) == 0:
+            break
+        gain = cost(f[j - 1], f[j]) - cost(f[j - 1], s) - cost(s, f[j])
+        f = np.sort(np.append(f, s[int(np.argmax(gain))]))
+    return f
+
+
+def optimal_poses(
+    proxy: placement.Proxy,
+    forced: np.ndarray,
+    allowed: np.ndarray,
+    reward: np.ndarray,
+    spacing: int,
+    count: int,
+    stride: int,
+    reach: float,
+) -> np.ndarray:
+    """About ``count`` pose frames whose spline layer fits best.
+
+    Parameters
+    ----------
+    forced : sorted frames every placement keeps (the first and last included).
+    allowed : (T,) bool, the frames a pose may take (on a cluster of features).
+    reward : (T,) in [0, 1], how much cheaper a pose is there (a pose that
+        covers contact changes is the paper's global evidence at work).
+    spacing : fewest frames between two poses (forced ones excepted).
+    count : the number of poses wanted.
+    stride : frames between the nodes of the grid poses are placed on.
+    reach : the longest segment, in average segments.
+
+    Between each two forced frames, a shortest path over a regular grid of
+    nodes: an edge is a segment, its length the proxy cost of the segment
+    (:func:`placement.window_costs`), and every pose on the way costs a price
+    (less its reward).  The one price for the whole clip is bisected until
+    the paths hold ``count`` poses (or the nearest count a price gives).
+    Linear in the clip's length.
+    """
+    forced = np.unique(np.asarray(forced, dtype=int))
+    T = len(allowed)
+    if count <= len(forced) or len(forced) < 2:
+        return forced
+    nodes_all = (T - 1) // stride + 1
+    W = max(2, int(np.ceil(reach * nodes_all / max(count - 1, 1))))
+    pieces = []
+    for f0, f1 in zip(forced[:-1], forced[1:], strict=True):
+        grid = np.arange(f0 + stride, f1, stride)
+        nodes = np.concatenate([[f0], grid[allowed[grid]], [f1]])
+        G = len(nodes)
+        if G < 3 or f1 - f0 < 2 * spacing:
+            pieces.append((nodes, None, None))
+            continue
+        Wp = min(W, G - 1)
+        seg = placement.window_costs(proxy, nodes, Wp)
+        i = np.arange(G)[:, None]
+        j = i + np.arange(1, Wp + 1)[None, :]
+        jc = np.minimum(j, G - 1)
+        gap = nodes[jc] - nodes[i]
+        bad = (j >= G) | (gap < spacing)
+        seg = np.where(bad, np.inf, seg)
+        into = np.full((G, Wp), np.inf)  # into[n, w-1]: the segment from node n - w
+        for w in range(1, Wp + 1):
+            into[w:, w - 1] = seg[: G - w, w - 1]
+        discount = 1.0 - np.clip(reward[nodes], 0.0, 1.0)
+        discount[-1] = 0.0  # the piece's end is paid for as a forced pose
+        pieces.append((nodes, into, discount))
+
+    def paths(price: float) -> list[np.ndarray]:
+        out = []
+        for nodes, into, discount in pieces:
+            if into is None:
+                out.append(nodes[[0, -1]])
+                continue
+            G, Wp = into.shape
+            best = np.full(G, np.inf)
+            back = np.zeros(G, dtype=int)
+            best[0] = 0.0
+            steps = np.arange(1, Wp + 1)
+            for n in range(1, G):
+                k = min(n, Wp)
+                v = best[n - steps[:k]] + into[n, :k]
+                w = int(np.argmin(v))
+                best[n] = v[w] + price * discount[n]
+                back[n] = n - steps[w]
+            walk = [G - 1]
+            while walk[-1] > 0:
+                walk.append(int(back[walk[-1]]))
+            out.append(nodes[walk[::-1]])
+        return out
+
+    def total(ps: list[np.ndarray]) -> int:
+        return sum(len(p) for p in ps) - (len(ps) - 1)
+
+    finite = [into[np.isfinite(into)] for _, into, _ in pieces if into is not None]
+    scale = max((float(np.max(f)) for f in finite if f.size), default=1.0)
+    lo, hi = 0.0, 2.0 * scale * T + 1.0
+    best_ps = paths(hi)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        ps = paths(mid)
+        n = total(ps)
+        if abs(n - count) < abs(total(best_ps) - count) or (n == count):
+            best_ps = ps
+        if n == count or hi - lo <= 1e-9 * hi:
+            break
+        if n > count:
+            lo = mid
+        else:
+            hi = mid
+    return np.unique(np.concatenate(best_ps))
+
+
+def place_poses(
+    cost: placement.SegmentCache,
+    poses: np.ndarray,
+    allowed: list[np.ndarray],
+    spacing: int,
+    sweeps: int = 2,
+) -> np.ndarray:
+    """Move each pose within its cluster to where the spline layer fits best.
+
+    Every pose may take any frame of ``allowed[k]`` that keeps ``spacing``
+    frames from its neighbours; the best one minimizes the proxy cost of the
+    two segments it bounds (all variables, no refinements).  Poses of one
+    parity move together (their segments do not share a pose), then the other.
+    """
+    f = np.array(poses, dtype=int)
+    K = len(f)
+    if K < 3:
+        return f
+    for _ in range(sweeps):
+        moved = False
+        for parity in (1, 0):
+            rows, cands = [], []
+            for k in range(1 + (parity == 0), K - 1, 2):
+                ok = allowed[k][(allowed[k] >= f[k - 1] + spacing) & (allowed[k] <= f[k + 1] - spacing)]
+                if len(ok) < 2:
+                    continue
+                rows.append(np.full(len(ok), k))
+                cands.append(ok)
+            if not rows:
+                continue
+            k_of = np.concatenate(rows)
+            c = np.concatenate(cands)
+            total = cost(f[k_of - 1], c) + cost(c, f[k_of + 1])
+            starts = np.flatnonzero(np.r_[True, k_of[1:] != k_of[:-1]])
+            for st, en in zip(starts, np.r_[starts[1:], len(k_of)], strict=True):
+                best = int(c[st + int(np.argmin(total[st:en]))])
+                if best != f[k_of[st]]:
+                    f[k_of[st]] = best
+                    moved = True
+        if not moved:
+            break
+    return f
+
+
+def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> list[tuple[str, int]]:
+    """(joint, frame) of every contact start and end, leaving out the clip's
+    first and last frame and frames next to a break (a T-pose frame): there
+    nothing changes, the clip just begins or ends."""
+    out = []
+    for c in constraints:
+        s = int(round(c.start * rate))
+        e = int(round(c.end * rate))
+        if 0 < s and not breaks[s - 1]:
+            out.append((c.joint, s))
+        if e < n_frames - 1 and not breaks[e]:
+            out.append((c.joint, e))
+    return out
+
+
+def contact_boundaries(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> np.ndarray:
+    """Frames (sorted, unique) where a contact starts or ends (see :func:`contact_events`)."""
+    return np.unique(np.array([f for _, f in contact_events(constraints, n_frames, rate, breaks)], dtype=int))
+
+
+def chain_variables(motion: BvhMotion | MarkerMotion, names: tuple[str, ...], joint: str) -> np.ndarray:
+    """Columns of the variables a contact of ``joint`` concerns: the rotations
+    of its leg (the two-bone chain's upper joint down to the joint), or the
+    marker itself."""
+    if not isinstance(motion, BvhMotion):
+        return np.array([names.index(joint)] if joint in names else [], dtype=int)
+    sk = motion.skeleton
+    e = sk.index(joint)
+    try:
+        top = ik.two_bone_chain(sk, e).upper
+    except UsageError:
+        top = e
+    path, j = [], e
+    while j >= 0:
+        path.append(sk.names[j])
+        if j == top:
+            break
+        j = int(sk.parents[j])
+    return np.array([names.index(n) for n in path if n in names], dtype=int)
+
+
+def _in_window(pose_f: np.ndarray, k: np.ndarray, f: np.ndarray, window: int) -> np.ndarray:
+    """Whether frames ``f`` may be refinements of poses ``k``: within
+    ``window`` frames and strictly closer to their own pose than to the
+    neighbours (the rule that keeps knots in order)."""
+    K = len(pose_f)
+    d = f - pose_f[k]
+    ok = (k > 0) & (k < K - 1) & (np.abs(d) <= window)
+    prev = pose_f[np.maximum(k - 1, 0)]
+    nxt = pose_f[np.minimum(k + 1, K - 1)]
+    return ok & (2 * f > pose_f[k] + prev) & (2 * f < pose_f[k] + nxt)
+
+
+def contact_refinements(
+    motion, names: tuple[str, ...], pose_f: np.ndarray, events: list[tuple[str, int]], window: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refinements (K, V) in frames that put the knots of a planted leg on its
+    contact change, and the mask (K, V) of where one applies.  A change
+    belongs to the nearest pose if it lies in that pose's refinement window;
+    of two changes for one variable and pose, the nearer wins."""
+    K, V = len(pose_f), len(names)
+    out = np.zeros((K, V), dtype=int)
+    best = np.full((K, V), np.iinfo(int).max)
+    chains: dict[str, np.ndarray] = {}
+    for joint, f in events:
+        k = int(np.clip(np.searchsorted(pose_f, f), 1, K - 1))
+        if k > 0 and abs(pose_f[k - 1] - f) < abs(pose_f[k] - f):
+            k -= 1
+        if not _in_window(pose_f, np.array([k]), np.array([f]), window)[0]:
+            continue
+        cols = chains.setdefault(joint, chain_variables(motion, names, joint))
+        d = f - int(pose_f[k])
+        nearer = abs(d) < best[k, cols]
+        out[k, cols[nearer]] = d
+        best[k, cols[nearer]] = abs(d)
+    return out, best < np.iinfo(int).max
+
+
+def prune_refinements(proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """Refinements (K, V) that earn their keep: a refinement stays where its
+    extreme knot makes the spline layer fit the two segments around the pose
+    at least as well as the pose time alone; ``fixed`` (K, V) ones stay
+    anyway.  Poses of one parity are decided together, then the other."""
+    r = np.array(refine_f, dtype=int)
+    K, V = r.shape
+    if K < 3 or V == 0:
+        return r
+    f = pose_f.astype(float)
+    for parity in (1, 0):
+        ks = np.arange(1, K - 1)
+        ks = ks[(ks % 2 == parity) & np.any(r[ks] != 0, axis=1)]
+        if len(ks) == 0:
+            continue
+        ext_prev = f[ks - 1, None] + r[ks - 1]
+        ext_next = f[ks + 1, None] + r[ks + 1]
+        left = np.maximum(f[ks - 1, None], ext_prev)
+        right = np.minimum(f[ks + 1, None], ext_next)
+        ext = f[ks, None] + r[ks]
+        here = np.broadcast_to(f[ks, None], ext.shape)
+        lo, hi = np.minimum(here, ext), np.maximum(here, ext)
+        with_r = placement.span_costs(proxy, np.stack([left, lo, hi, right], axis=-1))
+        without = placement.span_costs(proxy, np.stack([left, here, here, right], axis=-1))
+        drop = (with_r > REFINE_GAIN * without) & ~fixed[ks]
+        r[ks] = np.where(drop, 0, r[ks])
+    return r
+
+
 def extract(
     motion: BvhMotion | MarkerMotion,
     *,
@@ -155,6 +479,7 @@ def extract(
     min_contact: float = contact_detection.DEFAULT_MIN_CONTACT,
     contact_tolerance: float = contact_detection.DEFAULT_TOLERANCE,
     significance: float = DEFAULT_SIGNIFICANCE,
+    min_spacing: float = DEFAULT_MIN_SPACING,
 ) -> Document:
     """Find staggered poses, refinements and contacts in a dense clip.
 
@@ -188,6 +513,7 @@ def extract(
     min_contact = _check("--min-contact", min_contact)
     contact_tolerance = _check("--contact-tolerance", contact_tolerance, positive=True)
     significance = _check("--significance", significance)
+    min_spacing = _check("--min-spacing", min_spacing)
     T = motion.n_frames
     rate = float(motion.rate)
 
@@ -196,33 +522,49 @@ def extract(
     constraints = contact_detection.detect_contacts(
         motion, joints, min_duration=min_contact, tolerance=contact_tolerance
     )
-    boundaries = contact_boundaries(constraints, T, rate, ev.breaks)
+    events = contact_events(constraints, T, rate, ev.breaks)
+    boundaries = np.unique(np.array([f for _, f in events], dtype=int))
     contact = signals.contact_pulses(boundaries, T, rate, signals.DEFAULT_PULSE)
     contact_weight = float(ev.weights.max()) if len(ev.weights) else 0.0
     P = signals.pose_probability(ev, contact, contact_weight, filter_width)
 
-    on_contact = contact_poses(boundaries, max(int(round(CONTACT_MERGE * rate + 1e-9)), 0))
-    cand = signals.local_maxima(P)
-    if len(on_contact):
-        # a maximum of P this close to a contact change is that change
-        reach = 0.5 * filter_width * rate
-        j = np.searchsorted(on_contact, cand)
-        before = on_contact[np.maximum(j - 1, 0)]
-        after = on_contact[np.minimum(j, len(on_contact) - 1)]
-        cand = cand[np.minimum(np.abs(cand - before), np.abs(cand - after)) > reach]
-    if significance > 0 and len(cand):
-        amount = signals.tent_filter(ev.speed, 2.0 * refine_window, rate)
-        cand = cand[amount[cand] >= significance]
-    cand = np.concatenate([cand, on_contact])
-    pose_f = np.unique(np.concatenate([[0, T - 1], cand]).astype(int))
+    spacing = max(int(round(min_spacing * rate)), 1)
+    reach = max(int(round(0.5 * filter_width * rate)), 1)
+    window = int(np.floor(refine_window * rate + 1e-6))
+    breaks = np.flatnonzero(ev.breaks)
+    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1]).clip(0, max(T - 1, 0)))
+    gate = np.ones(T, dtype=bool)
+    if significance > 0:
+        gate = signals.tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
+    variables = dense_variables(motion)
+    proxy = placement.proxy_from_dense(variables, placement.variable_weights(motion, variables))
+    cost = placement.SegmentCache(proxy)
+    clusters = contact_clusters(boundaries, reach, T)
+    seeded, _, _, count = seed_poses(P, clusters, gate, forced, spacing)
+    stride = max(1, int(round(rate / PLACEMENT_RATE)))
+    allowed = np.zeros(T, dtype=bool)
+    allowed[feature_sites(ev.p @ ev.weights, np.ones(T, dtype=bool), reach)] = True
+    # a pose is cheaper by CONTACT_REWARD for each contact change it covers
+    covers = np.zeros(T + 1)
+    np.add.at(covers, np.clip(boundaries - reach, 0, T), 1.0)
+    np.add.at(covers, np.clip(boundaries + reach + 1, 0, T), -1.0)
+    reward = np.minimum(np.cumsum(covers)[:T] * CONTACT_REWARD, 1.0)
+    allowed |= reward > 0
+    pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH)
+    fixed = np.isin(pose_f, forced)
+    near = [np.arange(max(f - stride // 2, 0), min(f + stride // 2, T - 1) + 1) for f in pose_f.tolist()]
+    near = [np.array([f]) if fx else n for f, fx, n in zip(pose_f.tolist(), fixed, near, strict=True)]
+    pose_f = place_poses(cost, pose_f, near, spacing)
     pose_t = pose_f * float(motion.frame_time)
 
     priority = np.full(len(pose_f), np.inf)
     if len(pose_f) > 2:
         priority[1:-1] = P[pose_f[1:-1]] * (pose_t[2:] - pose_t[:-2])
 
-    window = int(np.floor(refine_window * rate + 1e-6))
-    refine = refinement_frames(ev.p, pose_f, window) * float(motion.frame_time)
+    peaks = refinement_frames(ev.p, pose_f, window)
+    on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
+    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed)
+    refine = refine_f * float(motion.frame_time)
 
     parameters = {
         "smoothing": smoothing,
@@ -231,6 +573,7 @@ def extract(
         "min_contact": min_contact,
         "contact_tolerance": contact_tolerance,
         "significance": significance,
+        "min_spacing": min_spacing,
         "contact_joints": list(joints),
         "contact_pulse": signals.DEFAULT_PULSE,
     }

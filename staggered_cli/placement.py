@@ -1,0 +1,252 @@
+"""Where poses earn their keep: a fast stand-in for the spline fit.
+
+Extraction places poses and cull ranks them by how well the spline layer
+alone would reproduce the motion (issue 13: the paper's priority
+``P(t_k)(t_{k+1} - t_{k-1})`` ignores the fit).  Refitting the real splines
+for every trial would cost a whole extract per trial, so trials use a
+*proxy*: every control variable becomes a Euclidean signal (translations as
+they are; rotations as their hemisphere-unrolled quaternion components, whose
+distance is half the rotation angle for small errors), and a segment between
+two knots costs the squared residual of the least-squares cubic Bézier that
+interpolates its end values, as the translation fit does, measured by the
+length of the misfit.  Each
+variable is weighted by how far its error moves the body: a rotation error
+of ``θ`` at joint ``j`` moves each joint below it by ``θ |x_d - x_j|``, a
+root translation moves every joint below it.  The cost of a segment is then
+(roughly) the summed world-position error of the joints it drives, the
+measure the spline layer is judged by; the controls are still the
+least-squares ones, as in the real fit.  Segment costs are computed for many segments at once.
+
+All times here are in frames (floats: a knot need not sit on a frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .motion import BvhMotion, MarkerMotion
+from .representation import ROTATION
+
+#: Rough bound on the number of floats one batch of segment costs gathers.
+_BATCH = 1 << 21
+
+
+@dataclass(frozen=True)
+class Proxy:
+    """Dense motion as Euclidean signals.
+
+    Attributes
+    ----------
+    x : (T, V, 4) values per frame and variable (translations padded with 0).
+    w : (V,) weights: how far an error of each variable moves the body.
+    """
+
+    x: np.ndarray
+    w: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return self.x.shape[0]
+
+
+def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
+    """Weights (V,) of the variables ``(kind, names, targets, dense)``.
+
+    BVH: a rotation of joint ``j`` weighs ``2 Σ_d |x_d - x_j|`` over the
+    joints ``d`` below it (a quaternion distance is half the angle), a
+    translation of ``j`` weighs the number of joints it moves, itself
+    included; positions are taken at the middle frame.  C3D: every marker
+    weighs 1.
+    """
+    if not isinstance(motion, BvhMotion):
+        return np.ones(sum(len(names) for _, names, _, _ in variables))
+    sk = motion.skeleton
+    pos = motion.world()[1][motion.n_frames // 2]  # (J, 3)
+    out = []
+    for kind, names, targets, _ in variables:
+        for j in np.asarray(targets, dtype=int):
+            below = sk.subtree(int(j))
+            if kind == ROTATION:
+                out.append(2.0 * float(np.sum(np.linalg.norm(pos[below] - pos[j], axis=1))))
+            else:
+                out.append(float(len(below)))
+    return np.asarray(out, dtype=float)
+
+
+def proxy_from_dense(variables, w: np.ndarray) -> Proxy:
+    """The proxy of dense variables ``(kind, names, targets, dense (T, V, D))``."""
+    cols = []
+    for _kind, _names, _targets, dense in variables:
+        d = np.asarray(dense, dtype=float)
+        if d.shape[-1] < 4:
+            d = np.concatenate([d, np.zeros(d.shape[:-1] + (4 - d.shape[-1],))], axis=-1)
+        cols.append(d)
+    if not cols:
+        return Proxy(np.zeros((0, 0, 4)), np.zeros(0))
+    return Proxy(np.concatenate(cols, axis=1), np.asarray(w, dtype=float))
+
+
+def _values_at(x: np.ndarray, var: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Linear interpolation of ``x (T, V, C)`` at fractional frames ``f`` (n,) of variables ``var`` (n,)."""
+    T = x.shape[0]
+    f = np.clip(f, 0.0, T - 1)
+    lo = np.minimum(np.floor(f).astype(int), T - 1)
+    hi = np.minimum(lo + 1, T - 1)
+    w = (f - lo)[:, None]
+    return x[lo, var] * (1.0 - w) + x[hi, var] * w
+
+
+#: A segment's residual is measured on at most this many samples, evenly
+#: spread in its normalized time and scaled to its frame count: placement
+#: compares thousands of trial segments, and 16 samples tell a cubic's misfit
+#: about as well as 120.
+SAMPLES = 16
+
+
+def segment_costs(proxy: Proxy, var: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Weighted misfit (n,) (the sum of residual lengths) of the least-squares cubic Bézier through the
+    values at frames ``a`` and ``b`` (fractional, ``a < b``) of variable
+    ``var``, over the frames strictly between them (measured on at most
+    :data:`SAMPLES` of them).  Segments with fewer than two frames inside keep
+    the default (straight) controls, as the fit does."""
+    var = np.asarray(var, dtype=int).ravel()
+    a = np.asarray(a, dtype=float).ravel()
+    b = np.asarray(b, dtype=float).ravel()
+    n = len(var)
+    out = np.zeros(n)
+    if n == 0:
+        return out
+    first = np.floor(a + 1e-9) + 1.0
+    count = np.maximum(np.ceil(b - 1e-9) - first, 0.0).astype(int)  # frames strictly inside
+    step = max(1, _BATCH // (SAMPLES * proxy.x.shape[2]))
+    for s in range(0, n, step):
+        sl = slice(s, s + step)
+        out[sl] = _costs(proxy, var[sl], a[sl], b[sl], first[sl], count[sl])
+    return out
+
+
+def _costs(proxy, var, a, b, first, count) -> np.ndarray:
+    x = proxy.x
+    L = SAMPLES
+    j = np.arange(L)[None, :]
+    dense = count <= L
+    # frames themselves where there are few; else evenly spread fractional frames
+    spread = a[:, None] + (b - a)[:, None] * (j + 0.5) / L
+    frames = np.where(dense[:, None], first[:, None] + j, spread)
+    inside = np.where(dense[:, None], j < count[:, None], True)
+    y = _values_at(x, np.repeat(var, L), frames.ravel()).reshape(len(var), L, -1)
+    u = np.where(inside, (frames - a[:, None]) / (b - a)[:, None], 0.0)
+    m = inside.astype(float)
+    v = 1.0 - u
+    b0, b1, b2, b3 = v**3 * m, 3 * u * v * v * m, 3 * u * u * v * m, u**3 * m
+    xa = _values_at(x, var, a)[:, None, :]
+    xb = _values_at(x, var, b)[:, None, :]
+    r = (y - b0[..., None] * xa - b3[..., None] * xb) * m[..., None]  # (n, L, C)
+    g11 = np.sum(b1 * b1, axis=1)
+    g12 = np.sum(b1 * b2, axis=1)
+    g22 = np.sum(b2 * b2, axis=1)
+    h1 = np.einsum("nl,nlc->nc", b1, r)
+    h2 = np.einsum("nl,nlc->nc", b2, r)
+    det = g11 * g22 - g12 * g12
+    fitted = (count >= 2) & (det > 1e-12 * np.maximum(g11 * g22, 1e-300))
+    safe = np.where(fitted, det, 1.0)
+    c1 = (g22[:, None] * h1 - g12[:, None] * h2) / safe[:, None]
+    c2 = (g11[:, None] * h2 - g12[:, None] * h1) / safe[:, None]
+    c1 = np.where(fitted[:, None], c1, xa[:, 0] + (xb[:, 0] - xa[:, 0]) / 3.0)
+    c2 = np.where(fitted[:, None], c2, xa[:, 0] + 2.0 * (xb[:, 0] - xa[:, 0]) / 3.0)
+    # the size of the misfit, not its square: world errors add up as lengths
+    res = r - b1[..., None] * c1[:, None, :] - b2[..., None] * c2[:, None, :]
+    cost = np.sum(np.sqrt(np.sum(res * res, axis=2)) * m, axis=1)
+    scale = np.where(dense, 1.0, count / L)
+    return cost * scale * proxy.w[var]
+
+
+class SegmentCache:
+    """Costs of unrefined segments (every variable's knots at the same two
+    frames), summed over variables and remembered by their end frames."""
+
+    def __init__(self, proxy: Proxy):
+        self.proxy = proxy
+        self._known: dict[tuple[int, int], float] = {}
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, dtype=int).ravel()
+        b = np.asarray(b, dtype=int).ravel()
+        keys = list(zip(a.tolist(), b.tolist(), strict=True))
+        todo = sorted({k for k in keys if k not in self._known and k[1] > k[0]})
+        if todo:
+            V = self.proxy.x.shape[1]
+            ta = np.repeat(np.array([k[0] for k in todo], dtype=float), V)
+            tb = np.repeat(np.array([k[1] for k in todo], dtype=float), V)
+            var = np.tile(np.arange(V), len(todo))
+            c = segment_costs(self.proxy, var, ta, tb).reshape(len(todo), V).sum(axis=1)
+            self._known.update(zip(todo, c.tolist(), strict=True))
+        return np.array([self._known.get(k, 0.0) for k in keys])
+
+
+def span_costs(proxy: Proxy, knots: np.ndarray) -> np.ndarray:
+    """Cost (n, V) of chains of knots: ``knots (n, V, m)`` gives, per row and
+    variable, ``m`` non-decreasing knot frames; the cost sums the segments
+    between consecutive distinct knots."""
+    n, V, k = knots.shape
+    if k < 2 or n == 0:
+        return np.zeros((n, V))
+    a = knots[..., :-1]
+    b = knots[..., 1:]
+    var = np.broadcast_to(np.arange(V)[None, :, None], a.shape)
+    real = b > a + 1e-9
+    cost = np.zeros(a.shape)
+    cost[real] = segment_costs(proxy, var[real], a[real], b[real])
+    return cost.sum(axis=2)
+
+
+def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
+    """Costs (G, width) of the segments between nodes: entry ``[i, w-1]`` is
+    the segment from node ``i`` to node ``i + w`` (``inf`` past the last
+    node), measured on the nodes between them.
+
+    Parameters
+    ----------
+    frames : (G,) increasing whole frames, the nodes (a regular grid keeps
+        the measure comparable between segments).
+    width : the longest segment, in nodes.
+    """
+    frames = np.asarray(frames, dtype=int)
+    G = len(frames)
+    x = proxy.x[frames]  # (G, V, C)
+    V, C = x.shape[1], x.shape[2]
+    out = np.full((G, width), np.inf)
+    block = max(1, _BATCH // max(width * V * C, 1))
+    for w in range(1, min(width, G - 1) + 1):
+        n = G - w
+        out[:n, w - 1] = 0.0
+        if w == 1:
+            continue
+        for s in range(0, n, block):
+            i = np.arange(s, min(s + block, n))
+            t = i[:, None] + np.arange(1, w)[None, :]  # (n, w-1) inner nodes
+            fa, fb = frames[i].astype(float), frames[i + w].astype(float)
+            u = (frames[t] - fa[:, None]) / (fb - fa)[:, None]
+            v = 1.0 - u
+            b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
+            xa, xb = x[i], x[i + w]  # (n, V, C)
+            y = x[t]  # (n, w-1, V, C)
+            r = y - b0[..., None, None] * xa[:, None] - b3[..., None, None] * xb[:, None]
+            g11 = np.sum(b1 * b1, axis=1)[:, None, None]
+            g12 = np.sum(b1 * b2, axis=1)[:, None, None]
+            g22 = np.sum(b2 * b2, axis=1)[:, None, None]
+            h1 = np.einsum("nt,ntvc->nvc", b1, r)
+            h2 = np.einsum("nt,ntvc->nvc", b2, r)
+            det = g11 * g22 - g12 * g12
+            if w - 1 >= 2:
+                c1 = (g22 * h1 - g12 * h2) / det
+                c2 = (g11 * h2 - g12 * h1) / det
+            else:  # one inner node: the default (straight) controls
+                c1 = xa + (xb - xa) / 3.0
+                c2 = xa + 2.0 * (xb - xa) / 3.0
+            res = r - b1[..., None, None] * c1[:, None] - b2[..., None, None] * c2[:, None]
+            err = np.sqrt(np.sum(res * res, axis=3))  # (n, w-1, V)
+            out[i, w - 1] = np.einsum("ntv,v->n", err, proxy.w)
+    return out
