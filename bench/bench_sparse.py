@@ -32,6 +32,7 @@ from staggered_cli.skeleton import forward_kinematics  # noqa: E402
 from tests.conftest import MOCAP  # noqa: E402
 
 KEEPS = ("50%", "25%", "10%")
+IGNORE = False
 
 
 def spline_error(doc, source_positions: np.ndarray, height: float) -> tuple[float, float]:
@@ -62,7 +63,7 @@ def measure(path: Path) -> dict:
         "min_gap": float(np.diff(doc.pose_t).min()),
         "extract_s": seconds,
     }
-    for label, d in [("all", doc)] + [(k, cull.keep_poses(doc, cull.choose(doc, keep=k))) for k in KEEPS]:
+    for label, d in [("all", doc)] + [(k, cull.keep_poses(doc, cull.choose(doc, keep=k, ignore_contacts=IGNORE))) for k in KEEPS]:
         e = spline_error(d, src, h)
         v = spline_error(even_doc(m, d.n_poses), src, h)
         row[label] = (d.n_poses, e, v)

@@ -41,10 +41,12 @@ class Proxy:
     ----------
     x : (T, V, 4) values per frame and variable (translations padded with 0).
     w : (V,) weights: how far an error of each variable moves the body.
+    cols : (V,) int, the variables of the clip these are (see :func:`proxy_from_dense`).
     """
 
     x: np.ndarray
     w: np.ndarray
+    cols: np.ndarray
 
     @property
     def n_frames(self) -> int:
@@ -75,8 +77,14 @@ def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
     return np.asarray(out, dtype=float)
 
 
-def proxy_from_dense(variables, w: np.ndarray) -> Proxy:
-    """The proxy of dense variables ``(kind, names, targets, dense (T, V, D))``."""
+def proxy_from_dense(variables, w: np.ndarray, keep: float = 0.999) -> Proxy:
+    """The proxy of dense variables ``(kind, names, targets, dense (T, V, D))``.
+
+    Only the variables that matter are kept: those that move, heaviest first
+    (weight times the length of their path), until ``keep`` of the total; a
+    finger or a constant channel does not decide where a pose goes.  Values
+    are float32, which is plenty for comparing fits.
+    """
     cols = []
     for _kind, _names, _targets, dense in variables:
         d = np.asarray(dense, dtype=float)
@@ -84,8 +92,19 @@ def proxy_from_dense(variables, w: np.ndarray) -> Proxy:
             d = np.concatenate([d, np.zeros(d.shape[:-1] + (4 - d.shape[-1],))], axis=-1)
         cols.append(d)
     if not cols:
-        return Proxy(np.zeros((0, 0, 4)), np.zeros(0))
-    return Proxy(np.concatenate(cols, axis=1), np.asarray(w, dtype=float))
+        return Proxy(np.zeros((0, 0, 4), dtype=np.float32), np.zeros(0), np.zeros(0, dtype=int))
+    x = np.concatenate(cols, axis=1)
+    w = np.asarray(w, dtype=float)
+    path = np.sum(np.linalg.norm(np.diff(x, axis=0), axis=2), axis=0) if len(x) > 1 else np.zeros(x.shape[1])
+    size = w * path
+    order = np.argsort(-size, kind="stable")
+    total = float(size.sum())
+    if total <= 0:
+        return Proxy(x[:, :0].astype(np.float32), w[:0], np.zeros(0, dtype=int))
+    n = int(np.searchsorted(np.cumsum(size[order]), keep * total) + 1)
+    pick = np.sort(order[: min(n, len(order))])
+    pick = pick[size[pick] > 0]
+    return Proxy(np.ascontiguousarray(x[:, pick], dtype=np.float32), w[pick], pick)
 
 
 def _values_at(x: np.ndarray, var: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -227,8 +246,8 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
         for s in range(0, n, block):
             i = np.arange(s, min(s + block, n))
             t = i[:, None] + np.arange(1, w)[None, :]  # (n, w-1) inner nodes
-            fa, fb = frames[i].astype(float), frames[i + w].astype(float)
-            u = (frames[t] - fa[:, None]) / (fb - fa)[:, None]
+            fa, fb = frames[i].astype(np.float32), frames[i + w].astype(np.float32)
+            u = (frames[t].astype(np.float32) - fa[:, None]) / (fb - fa)[:, None]
             v = 1.0 - u
             b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
             xa, xb = x[i], x[i + w]  # (n, V, C)
@@ -248,5 +267,5 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
                 c2 = xa + 2.0 * (xb - xa) / 3.0
             res = r - b1[..., None, None] * c1[:, None] - b2[..., None, None] * c2[:, None]
             err = np.sqrt(np.sum(res * res, axis=3))  # (n, w-1, V)
-            out[i, w - 1] = np.einsum("ntv,v->n", err, proxy.w)
+            out[i, w - 1] = np.einsum("ntv,v->n", err, proxy.w.astype(np.float32))
     return out

@@ -10,25 +10,37 @@ from .options import force_option, format_option, input_argument, output_option
 
 @click.command("cull")
 @input_argument
-@click.option("--keep", metavar="N|P%", help="Keep the N (or P percent) highest-priority poses.")
+@click.option(
+    "--keep",
+    metavar="N|P%",
+    help="Keep exactly N poses (P%: round(P x the pose count)), the first and last included, ranked --by.",
+)
 @click.option("--interval", metavar="A:B", help="Keep the poses between A and B seconds.")
 @click.option("--select", metavar="K,K,...", help="Keep these pose indices (as `info` lists them).")
 @click.option(
     "--add-time", "add_times", metavar="T", multiple=True, help="Add an unrefined pose at T seconds (repeatable)."
 )
 @click.option(
+    "--by",
+    type=click.Choice(["error", "paper"]),
+    default="error",
+    show_default=True,
+    help="How --keep ranks poses: the spline-layer error their removal adds (greedy), or the paper's priority.",
+)
+@click.option(
     "--ignore-contacts",
     is_flag=True,
-    help="Cull by priority alone (by default poses on contact starts and ends are kept).",
+    help="Rank every pose alike (by default poses on contact changes go last, within the count).",
 )
 @output_option
 @force_option
 @format_option
-def cull(input_path, keep, interval, select, add_times, ignore_contacts, output, force, fmt):
+def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, output, force, fmt):
     """Keep a subset of the poses of document FILE (first and last always).
 
-    The criteria combine; the displacement maps are refitted so that the
-    baked motion is unchanged.
+    --interval and --select keep exactly those poses; --keep then keeps
+    exactly N of them.  The displacement maps are refitted so that the baked
+    motion is unchanged.
     """
     from ..ops.cull import add_pose, choose, keep_poses
 
@@ -45,6 +57,7 @@ def cull(input_path, keep, interval, select, add_times, ignore_contacts, output,
             interval=time_range(interval, "--interval"),
             select=int_list(select, "--select"),
             ignore_contacts=ignore_contacts,
+            by=by,
         )
         doc = keep_poses(doc, mask)
     for t in times:

@@ -11,21 +11,50 @@ import logging
 
 import numpy as np
 
+from .. import placement, quat
 from ..document import Document, check_pose_index, reprioritized
 from ..errors import UsageError
-from ..representation import evaluate_at, knots_from_poses, pose_arrays, restructure
+from ..representation import ROTATION, evaluate, evaluate_at, knots_from_poses, pose_arrays, restructure
 
 log = logging.getLogger(__name__)
 
 
-def contact_poses(doc: Document, frames: int = 2) -> np.ndarray:
-    """Mask (K,) of poses within ``frames`` frames of a constraint start or end."""
+#: A pose this close (seconds) to a contact start or end is a pose on that
+#: contact change (half the pose probability's tent width: the cluster's reach).
+CONTACT_REACH = 0.075
+RANKINGS = ("error", "paper")
+PRECEDENCE = 1.0
+
+
+def contact_poses(doc: Document, reach: float = CONTACT_REACH) -> np.ndarray:
+    """Mask (K,) of the interior poses within ``reach`` seconds of a contact
+    start or end (not the clip's own ends, where nothing changes)."""
     mask = np.zeros(doc.n_poses, dtype=bool)
-    tol = frames * doc.frame_time + 1e-9
+    tol = reach + 1e-9
     for c in doc.constraints:
         for t in (c.start, c.end):
-            mask |= np.abs(doc.pose_t - t) <= tol
+            if doc.frame_time * 0.5 < t < doc.duration - doc.frame_time * 0.5:
+                mask |= np.abs(doc.pose_t - t) <= tol
+    mask[0] = mask[-1] = False
     return mask
+
+
+def keep_count(keep: str, n_poses: int) -> int:
+    """Poses asked for by ``--keep``: a count ``N`` or ``P%`` (``round(P·K)``
+    of the document's ``K`` poses, the first and last counted)."""
+    text = str(keep).strip()
+    try:
+        if text.endswith("%"):
+            pct = float(text[:-1])
+            if not np.isfinite(pct) or not 0 < pct <= 100:
+                raise UsageError(f"--keep percentage must be in (0, 100], got {keep!r}")
+            return int(np.floor(n_poses * pct / 100.0 + 0.5))
+        n = int(text)
+    except ValueError:
+        raise UsageError(f"--keep takes a percentage like 40% or a count like 12, got {keep!r}") from None
+    if n < 1:
+        raise UsageError(f"--keep must keep at least one pose, got {keep!r}")
+    return n
 
 
 def choose(
@@ -35,19 +64,27 @@ def choose(
     interval: tuple[float, float] | None = None,
     select: list[int] | None = None,
     ignore_contacts: bool = False,
+    by: str = "error",
 ) -> np.ndarray:
-    """Mask (K,) of the poses to keep.
+    """Mask (K,) of the poses to keep: exactly what was asked.
 
-    ``keep`` is ``'40%'`` or a count of the highest-priority poses;
-    ``interval`` keeps poses with times in [a, b]; ``select`` lists indices.
-    The criteria combine (intersection).  The first and last pose are always
-    kept and, unless ``ignore_contacts``, so are the poses on contact starts
-    and ends.
+    ``interval`` keeps the poses with times in [a, b] and ``select`` the
+    listed indices (both: the poses in both); the first and last pose are
+    always kept.  ``keep`` (``'40%'`` or a count, see :func:`keep_count`)
+    then keeps exactly that many of those, ranked ``by``:
+
+    * ``'error'``: the ``n`` poses whose spline layer fits the motion best
+      (:func:`best_subset`);
+    * ``'paper'``: the paper's priority ``P(t_k)(t_{k+1} - t_{k-1})``.
+
+    Unless ``ignore_contacts``, poses on contact changes take precedence
+    inside the count: the others go first.  When fewer poses are there than
+    asked for, all are kept and a warning says so.
     """
+    if by not in RANKINGS:
+        raise UsageError(f"--by must be one of {', '.join(RANKINGS)}, got {by!r}")
     K = doc.n_poses
     mask = np.ones(K, dtype=bool)
-    if keep is not None:
-        mask &= _top(doc, keep)
     if interval is not None:
         a, b = interval
         if np.isnan(a) or np.isnan(b) or a > b:
@@ -58,33 +95,102 @@ def choose(
         for k in select:
             sel[check_pose_index(doc, k)] = True
         mask &= sel
-    if not ignore_contacts:
-        mask |= contact_poses(doc)
     mask[0] = mask[-1] = True
-    return mask
+    if keep is None:
+        return mask
+    asked = keep_count(keep, K)
+    n = max(asked, min(2, K))
+    have = int(mask.sum())
+    if asked < n:
+        log.warning("--keep %s: keeping %d poses, the first and last always stay", keep, n)
+    if n >= have:
+        if n > have:
+            log.warning("--keep %s asks for %d poses but there are only %d to choose from: kept them all", keep, n, have)
+        return mask
+    contact = np.zeros(K, dtype=bool) if ignore_contacts else contact_poses(doc)
+    if by == "paper":
+        inner = np.flatnonzero(mask[1:-1]) + 1
+        pr = np.nan_to_num(doc.priority[inner], posinf=np.finfo(float).max)
+        ranked = inner[np.lexsort((inner, -pr, ~contact[inner]))]
+        out = np.zeros(K, dtype=bool)
+        out[ranked[: n - 2]] = True
+        out[0] = out[-1] = True
+        return out
+    return best_subset(doc, mask, n, contact)
 
 
-def _top(doc: Document, keep: str) -> np.ndarray:
+def document_proxy(doc: Document) -> tuple[placement.Proxy, np.ndarray]:
+    """The proxy of the motion a document bakes to (without the contact
+    layer), and the extreme knot frames (K, V) of the proxy's variables."""
+    t = doc.frame_times
+    variables, ext = [], []
+    for tr in doc.tracks:
+        dense = evaluate(tr, t)
+        if tr.kind == ROTATION:
+            dense = quat.unroll(dense, axis=0)
+        variables.append((tr.kind, tr.names, tr.targets, dense))
+        ext.append(pose_arrays(tr, doc.n_poses)[0])
+    proxy = placement.proxy_from_dense(variables, placement.variable_weights(doc.source, variables))
+    ext_f = (np.concatenate(ext, axis=1) if ext else np.zeros((doc.n_poses, 0))) / doc.frame_time
+    return proxy, ext_f[:, proxy.cols]
+
+
+def best_subset(doc: Document, mask: np.ndarray, n: int, last: np.ndarray | None = None) -> np.ndarray:
+    """Mask (K,) of the ``n`` poses of ``mask`` (the first and last among
+    them) whose spline layer fits the document's motion best.
+
+    Every variable keeps its own knots (refinements included): the misfit of
+    a kept set is, in the proxy of :mod:`staggered_cli.placement`, the sum of
+    each kept pose's own staggered span and of the segments between the last
+    knot of one kept pose and the first knot of the next, found by dynamic
+    programming over the poses (a segment spans at most a few times the
+    average).  Poses in ``last`` (K,) take precedence: the fewest of them
+    are dropped, then the misfit decides.
+    """
     K = doc.n_poses
-    text = keep.strip()
-    try:
-        if text.endswith("%"):
-            pct = float(text[:-1])
-            if not np.isfinite(pct) or not 0 < pct <= 100:
-                raise UsageError(f"--keep percentage must be in (0, 100], got {keep!r}")
-            n = int(np.ceil(K * pct / 100.0))
-        else:
-            n = int(text)
-            if n < 1:
-                raise UsageError(f"--keep must keep at least one pose, got {keep!r}")
-    except ValueError:
-        raise UsageError(f"--keep takes a percentage like 40% or a count like 12, got {keep!r}") from None
-    n = max(2, min(n, K))
-    # priorities are infinite on the first and last pose; ties keep the earlier pose
-    order = np.lexsort((np.arange(K), -np.nan_to_num(doc.priority, posinf=np.finfo(float).max)))
-    mask = np.zeros(K, dtype=bool)
-    mask[order[:n]] = True
-    return mask
+    last = np.zeros(K, dtype=bool) if last is None else np.asarray(last, dtype=bool)
+    c = np.flatnonzero(mask)
+    M = len(c)
+    if n >= M:
+        return np.asarray(mask, dtype=bool).copy()
+    proxy, ext = document_proxy(doc)
+    f = doc.pose_t / doc.frame_time
+    lo = np.minimum(f[c, None], ext[c])
+    hi = np.maximum(f[c, None], ext[c])
+    own = placement.span_costs(proxy, np.stack([lo, hi], axis=-1)).sum(axis=1) if ext.shape[1] else np.zeros(M)
+    W = int(min(M - 1, max(4, 3 * int(np.ceil((M - 1) / max(n - 1, 1))))))
+    a = np.repeat(np.arange(M), W)
+    b = a + np.tile(np.arange(1, W + 1), M)
+    ok = b < M
+    a, b = a[ok], b[ok]
+    pair = np.full((M, W), np.inf)
+    if ext.shape[1]:
+        knots = np.stack([np.maximum(f[c[a], None], ext[c[a]]), np.minimum(f[c[b], None], ext[c[b]])], axis=-1)
+        pair[a, b - a - 1] = placement.span_costs(proxy, knots).sum(axis=1)
+    else:
+        pair[a, b - a - 1] = 0.0
+    # dropping a pose that takes precedence costs PRECEDENCE typical segments
+    before = np.concatenate([[0], np.cumsum(last[c])])
+    skipped = before[b] - before[a + 1]
+    typical = float(np.mean(pair[:, 0][np.isfinite(pair[:, 0])])) if M > 1 else 0.0
+    pair[a, b - a - 1] += PRECEDENCE * typical * skipped
+    best = np.full(M, np.inf)
+    best[0] = own[0]
+    back = np.zeros((n, M), dtype=np.int64)
+    for m in range(1, n):
+        # into node j from node j - w
+        cand = np.full((M, W), np.inf)
+        for w in range(1, W + 1):
+            cand[w:, w - 1] = best[: M - w] + pair[: M - w, w - 1]
+        w = np.argmin(cand, axis=1)
+        best = cand[np.arange(M), w] + own
+        back[m] = np.arange(M) - (w + 1)
+    out = np.zeros(K, dtype=bool)
+    j = M - 1
+    for m in range(n - 1, -1, -1):
+        out[c[j]] = True
+        j = int(back[m, j])
+    return out
 
 
 def keep_poses(doc: Document, mask: np.ndarray) -> Document:

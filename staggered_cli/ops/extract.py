@@ -58,9 +58,10 @@ DEFAULT_SIGNIFICANCE = 0.5
 #: the best frame nearby.
 PLACEMENT_RATE = 30.0
 #: The longest segment placement considers, in average segments.
-SEGMENT_REACH = 4.0
+SEGMENT_REACH = 3.0
 #: A pose that covers contact changes costs this much less in placement.
 CONTACT_REWARD = 0.15
+#: A refinement stays only where it cuts the misfit around its pose to this share.
 REFINE_GAIN = 0.4
 #: Default fewest seconds between two poses (issue 13).
 DEFAULT_MIN_SPACING = 0.1
@@ -134,51 +135,27 @@ def contact_clusters(boundaries: np.ndarray, reach: int, n_frames: int) -> list[
     return out
 
 
-def seed_poses(
-    P: np.ndarray,
-    clusters: list[np.ndarray],
-    gate: np.ndarray,
-    forced: np.ndarray,
-    spacing: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """The poses every placement keeps, and how many poses the clip gets.
-
-    Parameters
-    ----------
-    P : (T,) pose probability.
-    clusters : per contact cluster, the frames whose pose covers its changes.
-    gate : (T,) bool, where a maximum of ``P`` is significant.
-    forced : frames that always carry a pose (the ends, both sides of a break).
-    spacing : fewest frames between two poses (forced ones excepted).
-
-    Returns
-    -------
-    poses : sorted frames of the forced poses and one pose per contact
-        cluster, at the cluster's strongest ``P`` (the cluster pulls the
-        maximum onto itself); a cluster closer than ``spacing`` to a pose
-        already taken (clusters taken in order of ``P``) has none.
-    cluster : (K,) int, the cluster each pose covers, -1 for forced ones.
-    forced_mask : (K,) bool.
-    count : the number of poses of the clip: the significant local maxima
-        of ``P`` that are ``spacing`` apart (taken in order of ``P``) and the
-        forced poses, or the poses above when there are more.
-    """
-    taken = np.unique(np.asarray(forced, dtype=int))
-    owner = {int(f): -1 for f in taken}
-    peaks = [int(c[np.argmax(P[c])]) for c in clusters]
-    for n in sorted(range(len(clusters)), key=lambda n: (-P[peaks[n]], peaks[n])):
-        f = peaks[n]
+def _spaced(frames: list[int], strength: np.ndarray, taken: np.ndarray, spacing: int) -> np.ndarray:
+    """``taken`` plus the ``frames`` (strongest first) at least ``spacing`` from every frame taken."""
+    taken = np.unique(np.asarray(taken, dtype=int))
+    for f in sorted(frames, key=lambda f: (-strength[f], f)):
         if np.min(np.abs(taken - f)) >= spacing:
-            owner[f] = n
             taken = np.sort(np.append(taken, f))
+    return taken
+
+
+def pose_count(P: np.ndarray, clusters: list[np.ndarray], gate: np.ndarray, forced: np.ndarray, spacing: int) -> int:
+    """How many poses a clip gets: one per cluster of coordinated events.
+
+    The clusters are the significant local maxima of ``P`` (where ``gate``
+    passes) and the contact clusters (each at its strongest ``P``), taken in
+    order of ``P`` and at least ``spacing`` frames apart, plus the ``forced``
+    poses.  The larger of the two counts: the maxima of ``P`` (the paper's
+    candidates) or the contact clusters.
+    """
     maxima = [int(m) for m in signals.local_maxima(P) if gate[m]]
-    counted = np.unique(np.asarray(forced, dtype=int))
-    for m in sorted(maxima, key=lambda m: (-P[m], m)):
-        if np.min(np.abs(counted - m)) >= spacing:
-            counted = np.sort(np.append(counted, m))
-    frames = np.array(sorted(owner), dtype=int)
-    cluster = np.array([owner[f] for f in frames.tolist()], dtype=int)
-    return frames, cluster, np.isin(frames, forced), max(len(counted), len(frames))
+    on_contact = [int(c[np.argmax(P[c])]) for c in clusters]
+    return max(len(_spaced(maxima, P, forced, spacing)), len(_spaced(on_contact, P, forced, spacing)))
 
 
 def feature_sites(evidence: np.ndarray, gate: np.ndarray, reach: int) -> np.ndarray:
@@ -192,24 +169,6 @@ def feature_sites(evidence: np.ndarray, gate: np.ndarray, reach: int) -> np.ndar
     np.add.at(near, np.clip(m - reach, 0, T), 1)
     np.add.at(near, np.clip(m + reach + 1, 0, T), -1)
     return np.flatnonzero(np.cumsum(near)[:T] > 0)
-
-
-def insert_poses(cost: placement.SegmentCache, poses: np.ndarray, sites: np.ndarray, spacing: int, count: int) -> np.ndarray:
-    """Add poses at the sites that gain the spline layer most, one at a time,
-    until there are ``count`` (or no site keeps ``spacing``)."""
-    f = np.array(poses, dtype=int)
-    sites = np.unique(np.asarray(sites, dtype=int))
-    while len(f) < count:
-        j = np.searchsorted(f, sites)
-        inner = (j > 0) & (j < len(f))
-        s, j = sites[inner], j[inner]
-        far = (s - f[j - 1] >= spacing) & (f[j] - s >= spacing)
-        s, j = s[far], j[far]
-        if len(s) == 0:
-            break
-        gain = cost(f[j - 1], f[j]) - cost(f[j - 1], s) - cost(s, f[j])
-        f = np.sort(np.append(f, s[int(np.argmax(gain))]))
-    return f
 
 
 def optimal_poses(
@@ -297,67 +256,32 @@ def optimal_poses(
     def total(ps: list[np.ndarray]) -> int:
         return sum(len(p) for p in ps) - (len(ps) - 1)
 
-    finite = [into[np.isfinite(into)] for _, into, _ in pieces if into is not None]
-    scale = max((float(np.max(f)) for f in finite if f.size), default=1.0)
-    lo, hi = 0.0, 2.0 * scale * T + 1.0
-    best_ps = paths(hi)
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        ps = paths(mid)
-        n = total(ps)
-        if abs(n - count) < abs(total(best_ps) - count) or (n == count):
-            best_ps = ps
-        if n == count or hi - lo <= 1e-9 * hi:
+    # bracket the price from a typical segment's cost, then bisect in log scale
+    finite = np.concatenate([into[np.isfinite(into)] for _, into, _ in pieces if into is not None] or [np.ones(1)])
+    price = max(float(np.median(finite)), 1e-12)
+    found = {}
+
+    def count_at(p: float) -> int:
+        if p not in found:
+            ps = paths(p)
+            found[p] = (total(ps), ps)
+        return found[p][0]
+
+    lo, hi = price, price
+    while count_at(lo) < count and lo > 1e-12 * price:
+        lo /= 8.0
+    while count_at(hi) > count and hi < 1e12 * price:
+        hi *= 8.0
+    for _ in range(30):
+        if count_at(lo) == count or count_at(hi) == count or hi / lo < 1.0 + 1e-6:
             break
-        if n > count:
+        mid = float(np.sqrt(lo * hi))
+        if count_at(mid) > count:
             lo = mid
         else:
             hi = mid
+    best_ps = min(found.values(), key=lambda v: (abs(v[0] - count), -v[0]))[1]
     return np.unique(np.concatenate(best_ps))
-
-
-def place_poses(
-    cost: placement.SegmentCache,
-    poses: np.ndarray,
-    allowed: list[np.ndarray],
-    spacing: int,
-    sweeps: int = 2,
-) -> np.ndarray:
-    """Move each pose within its cluster to where the spline layer fits best.
-
-    Every pose may take any frame of ``allowed[k]`` that keeps ``spacing``
-    frames from its neighbours; the best one minimizes the proxy cost of the
-    two segments it bounds (all variables, no refinements).  Poses of one
-    parity move together (their segments do not share a pose), then the other.
-    """
-    f = np.array(poses, dtype=int)
-    K = len(f)
-    if K < 3:
-        return f
-    for _ in range(sweeps):
-        moved = False
-        for parity in (1, 0):
-            rows, cands = [], []
-            for k in range(1 + (parity == 0), K - 1, 2):
-                ok = allowed[k][(allowed[k] >= f[k - 1] + spacing) & (allowed[k] <= f[k + 1] - spacing)]
-                if len(ok) < 2:
-                    continue
-                rows.append(np.full(len(ok), k))
-                cands.append(ok)
-            if not rows:
-                continue
-            k_of = np.concatenate(rows)
-            c = np.concatenate(cands)
-            total = cost(f[k_of - 1], c) + cost(c, f[k_of + 1])
-            starts = np.flatnonzero(np.r_[True, k_of[1:] != k_of[:-1]])
-            for st, en in zip(starts, np.r_[starts[1:], len(k_of)], strict=True):
-                best = int(c[st + int(np.argmin(total[st:en]))])
-                if best != f[k_of[st]]:
-                    f[k_of[st]] = best
-                    moved = True
-        if not moved:
-            break
-    return f
 
 
 def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> list[tuple[str, int]]:
@@ -439,31 +363,38 @@ def contact_refinements(
 
 
 def prune_refinements(proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-    """Refinements (K, V) that earn their keep: a refinement stays where its
-    extreme knot makes the spline layer fit the two segments around the pose
-    at least as well as the pose time alone; ``fixed`` (K, V) ones stay
-    anyway.  Poses of one parity are decided together, then the other."""
-    r = np.array(refine_f, dtype=int)
-    K, V = r.shape
-    if K < 3 or V == 0:
+    """Refinements (K, V) that earn their keep.
+
+    A refinement stays where its extreme knot makes the spline layer fit the
+    segments around the pose at most :data:`REFINE_GAIN` times as badly as
+    the pose time alone does: a knot that only shifts the misfit around
+    makes the body's parts miss together, not better.  Variables too small
+    to be in the proxy lose theirs; ``fixed`` (K, V) ones stay anyway.  Poses
+    of one parity are decided together, then the other.
+    """
+    r = np.where(fixed, refine_f, 0).astype(int)
+    K = r.shape[0]
+    cols = proxy.cols
+    if K < 3 or len(cols) == 0:
         return r
+    rc = np.array(refine_f, dtype=int)[:, cols]
+    fx = fixed[:, cols]
     f = pose_f.astype(float)
     for parity in (1, 0):
         ks = np.arange(1, K - 1)
-        ks = ks[(ks % 2 == parity) & np.any(r[ks] != 0, axis=1)]
+        ks = ks[(ks % 2 == parity) & np.any(rc[ks] != 0, axis=1)]
         if len(ks) == 0:
             continue
-        ext_prev = f[ks - 1, None] + r[ks - 1]
-        ext_next = f[ks + 1, None] + r[ks + 1]
-        left = np.maximum(f[ks - 1, None], ext_prev)
-        right = np.minimum(f[ks + 1, None], ext_next)
-        ext = f[ks, None] + r[ks]
+        left = np.maximum(f[ks - 1, None], f[ks - 1, None] + rc[ks - 1])
+        right = np.minimum(f[ks + 1, None], f[ks + 1, None] + rc[ks + 1])
+        ext = f[ks, None] + rc[ks]
         here = np.broadcast_to(f[ks, None], ext.shape)
         lo, hi = np.minimum(here, ext), np.maximum(here, ext)
         with_r = placement.span_costs(proxy, np.stack([left, lo, hi, right], axis=-1))
         without = placement.span_costs(proxy, np.stack([left, here, here, right], axis=-1))
-        drop = (with_r > REFINE_GAIN * without) & ~fixed[ks]
-        r[ks] = np.where(drop, 0, r[ks])
+        drop = (with_r > REFINE_GAIN * without) & ~fx[ks]
+        rc[ks] = np.where(drop, 0, rc[ks])
+    r[:, cols] = rc
     return r
 
 
@@ -538,9 +469,8 @@ def extract(
         gate = signals.tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     variables = dense_variables(motion)
     proxy = placement.proxy_from_dense(variables, placement.variable_weights(motion, variables))
-    cost = placement.SegmentCache(proxy)
     clusters = contact_clusters(boundaries, reach, T)
-    seeded, _, _, count = seed_poses(P, clusters, gate, forced, spacing)
+    count = pose_count(P, clusters, gate, forced, spacing)
     stride = max(1, int(round(rate / PLACEMENT_RATE)))
     allowed = np.zeros(T, dtype=bool)
     allowed[feature_sites(ev.p @ ev.weights, np.ones(T, dtype=bool), reach)] = True
@@ -551,10 +481,6 @@ def extract(
     reward = np.minimum(np.cumsum(covers)[:T] * CONTACT_REWARD, 1.0)
     allowed |= reward > 0
     pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH)
-    fixed = np.isin(pose_f, forced)
-    near = [np.arange(max(f - stride // 2, 0), min(f + stride // 2, T - 1) + 1) for f in pose_f.tolist()]
-    near = [np.array([f]) if fx else n for f, fx, n in zip(pose_f.tolist(), fixed, near, strict=True)]
-    pose_f = place_poses(cost, pose_f, near, spacing)
     pose_t = pose_f * float(motion.frame_time)
 
     priority = np.full(len(pose_f), np.inf)
