@@ -64,8 +64,9 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
     """Add ``delta`` (K, V) seconds to the refinements, keeping the knots in order.
 
     A knot that would cross a neighbouring knot raises KnotOrderError, or
-    with ``clamp`` stops half a frame short of it.  A knot that ends closer
-    to a neighbouring pose than to its own is warned about (logging).
+    with ``clamp`` stops half a frame short of it.  Knots that end closer
+    to a neighbouring pose than to their own are warned about in one line
+    (logging): how many, and the largest.
     Contact constraints move with the timing of the joint that carries them
     (see :func:`_warp_constraints`).
     """
@@ -74,7 +75,7 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
         raise ValueError(f"delta must have shape {(doc.n_poses, len(doc.variable_names))}, got {delta.shape}")
     if not np.all(np.isfinite(delta)):
         raise UsageError("timing offsets must be finite")
-    tracks, warps, col = [], {}, 0
+    tracks, warps, col, far = [], {}, 0, []
     for tr in doc.tracks:
         # a variable that never moves has no timing: retiming it could only be refused
         d = delta[:, col : col + tr.n_vars] * ~static_variables(tr)[None, :]
@@ -83,9 +84,23 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
             tracks.append(tr)
             continue
         track, old_ext, new_ext = _retime_track(doc, tr, d, clamp)
+        far += _far_knots(doc, tr, old_ext - doc.pose_t[:, None], new_ext - doc.pose_t[:, None])
         tracks.append(track)
         for i in np.flatnonzero(np.any(old_ext != new_ext, axis=0)):
             warps[(tr.kind, int(tr.targets[i]))] = (old_ext[:, i], new_ext[:, i])
+    if far:
+        r, k, name = max(far, key=lambda x: (abs(x[0]), -x[1]))
+        many = len(far) > 1
+        log.warning(
+            "%d extreme knot%s closer to a neighbouring pose than to %s own (the largest: %s of pose %d, "
+            "%+.3f s): the time warp there is steep",
+            len(far),
+            "s now lie" if many else " now lies",
+            "their" if many else "its",
+            name,
+            k,
+            r,
+        )
     return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps))
 
 
@@ -164,7 +179,6 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     edit = value.copy()
     if len(kk):
         edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk])
-    _warn_far_knots(doc, tr, refine, new_refine)
     knots = knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names)
     return restructure(warped, *knots, frame_t=doc.frame_times), old_ext, new_ext
 
@@ -204,17 +218,16 @@ def _clamped(pose_t: np.ndarray, current: np.ndarray, wanted: np.ndarray, margin
     return out
 
 
-def _warn_far_knots(doc: Document, tr: Track, before: np.ndarray, refine: np.ndarray) -> None:
-    """Warn about extreme knots that an edit left closer to a neighbouring
-    pose than to their own (knots that were already there are not repeated)."""
+def _far_knots(doc: Document, tr: Track, before: np.ndarray, refine: np.ndarray) -> list[tuple[float, int, str]]:
+    """(refinement, pose, variable) of the extreme knots an edit left closer
+    to a neighbouring pose than to their own (the paper's warning; knots that
+    were already there are not counted again)."""
     t = doc.pose_t
     gap_prev = np.concatenate([[np.inf], np.diff(t)])
     gap_next = np.concatenate([np.diff(t), [np.inf]])
     far = ((refine > 0) & (refine > gap_next[:, None] / 2)) | ((refine < 0) & (-refine > gap_prev[:, None] / 2))
     far &= refine != before
-    for k in np.flatnonzero(far.any(axis=1)):
-        which = ", ".join(f"{tr.names[i]} {refine[k, i]:+.3f} s" for i in np.flatnonzero(far[k]))
-        log.warning("pose %d: extreme knots closer to a neighbouring pose than to their own: %s", k, which)
+    return [(float(refine[k, i]), int(k), tr.names[i]) for k, i in zip(*np.nonzero(far), strict=True)]
 
 
 def succession(
