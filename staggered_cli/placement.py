@@ -67,7 +67,7 @@ def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
     sk = motion.skeleton
     pos = motion.world()[1][motion.n_frames // 2]  # (J, 3)
     out = []
-    for kind, names, targets, _ in variables:
+    for kind, _names, targets, _ in variables:
         for j in np.asarray(targets, dtype=int):
             below = sk.subtree(int(j))
             if kind == ROTATION:
@@ -180,29 +180,6 @@ def _costs(proxy, var, a, b, first, count) -> np.ndarray:
     cost = np.sum(np.sqrt(np.sum(res * res, axis=2)) * m, axis=1)
     scale = np.where(dense, 1.0, count / L)
     return cost * scale * proxy.w[var]
-
-
-class SegmentCache:
-    """Costs of unrefined segments (every variable's knots at the same two
-    frames), summed over variables and remembered by their end frames."""
-
-    def __init__(self, proxy: Proxy):
-        self.proxy = proxy
-        self._known: dict[tuple[int, int], float] = {}
-
-    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        a = np.asarray(a, dtype=int).ravel()
-        b = np.asarray(b, dtype=int).ravel()
-        keys = list(zip(a.tolist(), b.tolist(), strict=True))
-        todo = sorted({k for k in keys if k not in self._known and k[1] > k[0]})
-        if todo:
-            V = self.proxy.x.shape[1]
-            ta = np.repeat(np.array([k[0] for k in todo], dtype=float), V)
-            tb = np.repeat(np.array([k[1] for k in todo], dtype=float), V)
-            var = np.tile(np.arange(V), len(todo))
-            c = segment_costs(self.proxy, var, ta, tb).reshape(len(todo), V).sum(axis=1)
-            self._known.update(zip(todo, c.tolist(), strict=True))
-        return np.array([self._known.get(k, 0.0) for k in keys])
 
 
 def span_costs(proxy: Proxy, knots: np.ndarray) -> np.ndarray:

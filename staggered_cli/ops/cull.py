@@ -105,7 +105,9 @@ def choose(
         log.warning("--keep %s: keeping %d poses, the first and last always stay", keep, n)
     if n >= have:
         if n > have:
-            log.warning("--keep %s asks for %d poses but there are only %d to choose from: kept them all", keep, n, have)
+            log.warning(
+                "--keep %s asks for %d poses but there are only %d to choose from: kept them all", keep, n, have
+            )
         return mask
     contact = np.zeros(K, dtype=bool) if ignore_contacts else contact_poses(doc)
     if by == "paper":

@@ -7,39 +7,40 @@
    seconds at every contact start and end (not at the clip's ends, where
    nothing changes), weighted like the strongest variable.
 3. ``P(t) = tent(Σ w_i p_i / Σ w_i)`` over the local evidence and the pulses.
-4. Candidate poses at the local maxima of ``P``, plus the first and last
-   frame, kept when the *significance gate* passes (below), and a pose on
-   every contact change (below).  Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})``
-   over the kept list (infinite for the first and last pose).
-5. Refinements: for every pose and variable, the local maximum of ``p_i``
-   nearest ``t_k`` within ``refine_window`` seconds and strictly closer to
-   ``t_k`` than to the neighbouring poses; none -> 0.  Refinements are whole
-   frames, and the "closer to its own pose" rule keeps every variable's knots
-   in order (extreme knots stay between the midpoints of their neighbours).
-6. Splines and displacement maps: :func:`staggered_cli.document.from_motion`.
+4. How many poses: one per cluster of coordinated events
+   (:func:`pose_count`): the significant local maxima of ``P`` at least
+   ``min_spacing`` apart, or the clusters of contact changes if there are
+   more.  The first and last frame, and both sides of a one-frame
+   discontinuity (the CMU T-pose), always carry a pose.
+5. Where they go (:func:`optimal_poses`; beyond the paper, whose poses sit
+   on the maxima and whose priority ignores the fit): the frames near a
+   feature (a peak of the combined evidence, or a contact cluster), chosen
+   so that the spline layer alone fits the motion best, measured by the
+   proxy of :mod:`staggered_cli.placement`.  A pose that covers contact
+   changes costs less, so contacts keep shaping the poses.
+6. Refinements: the contact changes of a pose's cluster put the planted
+   leg's knots on its contact frame (:func:`contact_refinements`); other
+   variables take the local maximum of ``p_i`` nearest ``t_k`` within
+   ``refine_window`` seconds and strictly closer to ``t_k`` than to the
+   neighbouring poses (:func:`refinement_frames`), kept only where they earn
+   their keep (:func:`prune_refinements`).  Refinements are whole frames;
+   the "closer to its own pose" rule keeps every variable's knots in order.
+   Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
+   last pose) stays for ``cull --by paper``.
+7. Splines and displacement maps: :func:`staggered_cli.document.from_motion`.
 
 Significance gate
     The scaled curvature ignores amplitude: a figure swaying by a centimetre
-    makes as many peaks as one walking.  A candidate is kept only where the
-    figure moves: the *amount of motion* (:attr:`LocalEvidence.speed`, the
-    sum over variables of how fast each moves the body, in figure heights
-    per second: limb length × angular speed for rotations, speed for
-    translations), averaged with a tent filter of twice the refinement
-    window (0.5 s, the paper's cluster width), must reach ``significance``
-    (default :data:`DEFAULT_SIGNIFICANCE` = 0.5 figure heights per second).
-    Walking and running move the body by 4-15 figure heights per second, a
-    standing bow by 0.3-2, an idle stance by about 0.1.
-
-Poses on contact changes
-    Contact starts and ends are the paper's global evidence, and poses are
-    expected on them.  But the tent filter merges changes closer than its
-    width (heel strike and foot flat are 0.05-0.1 s apart) and the slope of
-    the local evidence shifts the merged maximum, so at 120 Hz most maxima
-    would miss the change by more than two frames.  Every contact change is
-    therefore a candidate itself (changes at most four frames apart share
-    one pose in their middle, :func:`contact_poses`); a maximum of ``P``
-    within half the filter width of such a pose is taken to be the same
-    event and dropped.  These poses bypass the significance gate.
+    makes as many peaks as one walking.  A maximum of ``P`` counts as a pose
+    only where the figure moves: the *amount of motion*
+    (:attr:`LocalEvidence.speed`, the sum over variables of how fast each
+    moves the body, in figure heights per second: limb length × angular
+    speed for rotations, speed for translations), averaged with a tent
+    filter of twice the refinement window (0.5 s, the paper's cluster
+    width), must reach ``significance`` (default
+    :data:`DEFAULT_SIGNIFICANCE` = 0.5 figure heights per second).  Walking
+    and running move the body by 4-15 figure heights per second, a standing
+    bow by 0.3-2, an idle stance by about 0.1.
 """
 
 from __future__ import annotations
@@ -54,12 +55,13 @@ from ..motion import BvhMotion, MarkerMotion
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
-#: Poses are placed on a grid of this many frames per second, then moved to
-#: the best frame nearby.
+#: Poses are placed on a grid of this many frames per second (a pose frame
+#: is then a whole 30 Hz frame, at any capture rate).
 PLACEMENT_RATE = 30.0
 #: The longest segment placement considers, in average segments.
 SEGMENT_REACH = 3.0
-#: A pose that covers contact changes costs this much less in placement.
+#: A pose costs this share of the price less in placement for each contact
+#: change within its cluster's reach (at most all of it).
 CONTACT_REWARD = 0.15
 #: A refinement stays only where it cuts the misfit around its pose to this share.
 REFINE_GAIN = 0.4
@@ -362,7 +364,9 @@ def contact_refinements(
     return out, best < np.iinfo(int).max
 
 
-def prune_refinements(proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+def prune_refinements(
+    proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray, fixed: np.ndarray
+) -> np.ndarray:
     """Refinements (K, V) that earn their keep.
 
     A refinement stays where its extreme knot makes the spline layer fit the
