@@ -13,8 +13,11 @@ plants along.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
+from .. import quat
 from ..document import Document, at_times, local_pose, marker_points, output_times, reference_channels
 from ..document import same_rate as is_same_rate
 from ..errors import UsageError
@@ -24,6 +27,8 @@ from ..motion import (
     channels_from_local,
 )
 from ..skeleton import forward_kinematics
+
+log = logging.getLogger(__name__)
 
 _UNDISTURBED = 1e-6  # of figure height
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
@@ -160,12 +165,13 @@ def _contact_layer(
     src_wp = src.world()[1]
     size = src.figure_height()  # cached with the clip's world positions
 
+    tolerance = _tolerance(size, same_rate)
+
     def target(c):
         j = sk.names.index(c.joint)
         path = _source_path(src_wp[:, j], doc.frame_time, c, t)
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
-        offset = (wp[inside, j] - path[inside]).mean(axis=0) if inside.any() else np.zeros(3)
-        return path, path + offset
+        return path, path + _plant_offset(wp[inside, j], path[inside], tolerance)
 
     todo = [
         c
@@ -177,7 +183,7 @@ def _contact_layer(
             t,
             c,
             _check_blend(blend, same_rate),
-            _tolerance(size, same_rate),
+            tolerance,
         )
     ]
     # a foot and its toe share a chain: solving one moves the other, so a
@@ -191,7 +197,77 @@ def _contact_layer(
     targets = [None if c.pin else target(c)[1] for c in todo]  # None: held at its mean position
     from ..ik import ik_layer
 
-    return ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=targets)
+    out = ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=targets)
+    _warn_overridden(doc, rot, out, t, todo)
+    return out
+
+
+#: Edits smaller than this (degrees) at a pose are not worth a warning.
+_EDIT_WORTH_WARNING = 1.0
+
+
+def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np.ndarray, todo: list) -> None:
+    """Say so (one warning line per pose and joint) where the contact layer
+    changes an edited joint's rotation at a pose by more than half of the
+    edit: a planted foot cannot keep a hip flexion, but the user must know.
+    The edit is the baked motion's difference from the source at the pose."""
+    from ..ik import two_bone_chain
+
+    src = doc.source
+    sk = src.skeleton
+    if len(t) == 0:
+        return
+    frames = np.clip(np.searchsorted(t, doc.pose_t), 0, len(t) - 1)
+    near = np.clip(np.rint(t[frames] / doc.frame_time).astype(int), 0, doc.n_frames - 1)
+    source = src.local_rotations()[near]  # (K, J, 4)
+    told: set[tuple[int, int]] = set()
+    for c in todo:
+        n = doc.constraints.index(c)
+        chain = two_bone_chain(sk, c.joint)
+        for k in range(doc.n_poses):
+            f = frames[k]
+            if not c.start - 1e-9 <= t[f] <= c.end + 1e-9:
+                continue
+            for j in (chain.upper, chain.middle, chain.lower):
+                edit = float(np.degrees(quat.angle_between(before[f, j], source[k, j])))
+                taken = float(np.degrees(quat.angle_between(after[f, j], before[f, j])))
+                if edit < _EDIT_WORTH_WARNING or taken <= 0.5 * edit or (k, j) in told:
+                    continue
+                told.add((k, j))
+                log.warning(
+                    "pose %d (%.3f s): the contact layer changes %s by %.1f° of its %.1f° edit to keep %s "
+                    "planted (constraint %d, %.3f to %.3f s); bake with --no-ik, or drop the constraint "
+                    "with `constraints --remove %d`",
+                    k,
+                    doc.pose_t[k],
+                    sk.names[j],
+                    taken,
+                    edit,
+                    c.joint,
+                    n,
+                    c.start,
+                    c.end,
+                    n,
+                )
+
+
+def _plant_offset(pos: np.ndarray, path: np.ndarray, tolerance: float) -> np.ndarray:
+    """How far (3,) a disturbed plant moves from its captured path, given the
+    point's positions ``pos`` and its path ``path`` (n, 3) over the constraint.
+
+    Where the edits left part of the contact where it was, the plant stays
+    on the captured path (offset 0): the layer then only undoes the sliding
+    the edit brought, and frames the edit did not reach stay as they are.
+    Only an edit that moved the whole contact moves the plant, by its mean
+    offset (gaps ignored).
+    """
+    with np.errstate(invalid="ignore"):
+        d = pos - path
+        dist = np.linalg.norm(d, axis=-1)
+    ok = np.isfinite(dist)
+    if not ok.any() or np.any(dist[ok] <= tolerance):
+        return np.zeros(3)
+    return d[ok].mean(axis=0)
 
 
 def _smooth_weight(t: np.ndarray, start: float, end: float, blend: float) -> np.ndarray:
@@ -230,7 +306,7 @@ def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
         seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(path), axis=1)
         if not seen.any():
             continue
-        target = path + (pts[seen, m] - path[seen]).mean(axis=0)
+        target = path + _plant_offset(pts[seen, m], path[seen], tolerance)
         w = _smooth_weight(t, c.start, c.end, blend)[:, None]
         # in the blend windows the correction fades from its value at the boundary
         i0, i1 = np.flatnonzero(seen)[[0, -1]]
