@@ -284,15 +284,32 @@ def _smooth_weight(t: np.ndarray, start: float, end: float, blend: float) -> np.
 
 def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, same_rate: bool) -> np.ndarray:
     """C3D: a disturbed constrained marker follows its captured path shifted by
-    the edit's mean offset over the constraint, blended in and out (markers
-    have no chain to solve)."""
+    the edit's mean offset over the constraint, blended in and out.
+
+    Markers that a timing edit retimed as a chain (the document's
+    ``marker_tree``, see :mod:`.marker_chain`) keep their segments: the
+    marker's parent is moved by two-bone IK on points (grandparent fixed,
+    both segment lengths kept, the middle marker on its side of the limb),
+    or, where the parent is planted too or has no parent, the marker turns
+    about its parent towards its plant; the markers below it move along.
+    """
     src = doc.source
     tolerance = _tolerance(src.figure_height(), same_rate)
+    labels = list(src.labels)
+    parents = marker_tree_parents(doc)
+    depth = np.zeros(len(labels), dtype=int)
+    for i in range(len(labels)):
+        j = parents[i]
+        while j >= 0 and depth[i] <= len(labels):
+            depth[i] += 1
+            j = parents[j]
     out = pts.copy()
+    held: dict[int, np.ndarray] = {}  # marker -> frames where a pin moved it
     for c in doc.constraints:
         if c.joint not in src.labels:
             raise UsageError(f"constraint on unknown marker {c.joint!r}")
-        m = src.labels.index(c.joint)
+    for c in sorted(doc.constraints, key=lambda c: depth[labels.index(c.joint)]):  # parents first
+        m = labels.index(c.joint)
         path = _source_path(src.points[:, m], doc.frame_time, c, t)
         if c.pin:  # planted by the user: held at its mean position over the constraint
             inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
@@ -312,5 +329,86 @@ def _pin_markers(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
         i0, i1 = np.flatnonzero(seen)[[0, -1]]
         corr = np.where((t < c.start)[:, None], target[i0] - pts[i0, m], target[i1] - pts[i1, m])
         corr[inside] = (target - pts[:, m])[inside]
-        out[:, m] = np.where(w > 0, pts[:, m] + w * np.nan_to_num(corr), out[:, m])
+        frames = np.flatnonzero(w[:, 0] > 0)
+        goal = pts[frames, m] + w[frames] * np.nan_to_num(corr[frames])
+        _place_in_tree(out, parents, m, frames, goal, held)
+        held[m] = np.union1d(held.get(m, np.zeros(0, dtype=int)), frames)
     return out
+
+
+def marker_tree_parents(doc: Document) -> np.ndarray:
+    """Parent index (M,) of each marker in the document's ``marker_tree`` (-1: none)."""
+    labels = list(doc.source.labels)
+    parents = np.full(len(labels), -1, dtype=int)
+    for child, parent in dict(doc.parameters.get("marker_tree", {})).items():
+        if child in labels and parent in labels:
+            parents[labels.index(child)] = labels.index(parent)
+    return parents
+
+
+def _place_in_tree(
+    out: np.ndarray, parents: np.ndarray, m: int, frames: np.ndarray, goal: np.ndarray, held: dict
+) -> None:
+    """Move marker ``m`` towards ``goal`` (n, 3) at ``frames`` in ``out``
+    (T, M, 3), in place, keeping its tree's segments (see :func:`_pin_markers`)."""
+    p = int(parents[m])
+    before = out[frames].copy()  # (n, M, 3)
+    cur = before[:, m]
+    new = goal
+    if p >= 0:
+        g = int(parents[p])
+        planted_parent = p in held and np.isin(frames, held[p]).any()
+        if g >= 0 and not planted_parent:
+            knee = _two_bone_points(before[:, g], before[:, p], cur, goal)
+            ok = np.all(np.isfinite(knee), axis=1)
+            _move_subtree(out, parents, p, frames[ok], knee[ok] - before[ok, p], skip=m)
+            out[frames[ok], p] = knee[ok]
+            anchor = np.where(ok[:, None], knee, before[:, p])
+        else:
+            anchor = before[:, p]
+        # the marker turns about its parent, at its own distance, towards its goal
+        length = np.linalg.norm(cur - before[:, p], axis=1, keepdims=True)
+        aim = goal - anchor
+        n = np.linalg.norm(aim, axis=1, keepdims=True)
+        turned = anchor + length * aim / np.where(n > 0, n, 1.0)
+        new = np.where(np.isfinite(turned) & (n > 0), turned, goal)
+    _move_subtree(out, parents, m, frames, np.nan_to_num(new - cur))
+    out[frames, m] = np.where(np.isfinite(cur), new, cur)
+
+
+def _move_subtree(out: np.ndarray, parents: np.ndarray, m: int, frames: np.ndarray, shift: np.ndarray, skip=-1) -> None:
+    """Translate the markers below ``m`` (not ``m`` itself, nor the branch of
+    ``skip``) by ``shift`` (n, 3) at ``frames``, in place."""
+    below = [i for i in range(len(parents)) if i != m and _is_below(parents, i, m) and not _is_below(parents, i, skip)]
+    for i in below:
+        out[frames, i] = out[frames, i] + shift
+
+
+def _is_below(parents: np.ndarray, i: int, m: int) -> bool:
+    if m < 0:
+        return False
+    j = i
+    for _ in range(len(parents)):
+        if j == m:
+            return True
+        j = int(parents[j])
+        if j < 0:
+            return False
+    return False
+
+
+def _two_bone_points(a: np.ndarray, b: np.ndarray, c: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Where the middle point of the chain a-b-c goes (n, 3) when its end c
+    moves to ``goal``, with ``a`` fixed, both lengths kept and ``b`` on its side
+    of the line from ``a`` to the goal (as far as the lengths reach)."""
+    l1 = np.linalg.norm(b - a, axis=1)
+    l2 = np.linalg.norm(c - b, axis=1)
+    to_goal = goal - a
+    d = np.linalg.norm(to_goal, axis=1)
+    u = to_goal / np.where(d > 0, d, 1.0)[:, None]
+    d = np.clip(d, np.abs(l1 - l2) + 1e-9, l1 + l2 - 1e-9)
+    side = (b - a) - np.sum((b - a) * u, axis=1, keepdims=True) * u
+    sn = np.linalg.norm(side, axis=1, keepdims=True)
+    v = side / np.where(sn > 0, sn, 1.0)
+    cos = np.clip((l1**2 + d**2 - l2**2) / np.maximum(2 * l1 * d, 1e-300), -1.0, 1.0)
+    return a + l1[:, None] * (cos[:, None] * u + np.sqrt(1 - cos**2)[:, None] * v)

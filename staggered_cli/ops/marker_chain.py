@@ -195,3 +195,28 @@ def _with_variables(new: Track, old: Track, keep: np.ndarray) -> Track:
         samp_s=np.concatenate(s_parts),
         samp_d=np.concatenate(d_parts),
     )
+
+
+def with_marker_tree(parameters: dict, labels: tuple[str, ...], parents: np.ndarray) -> dict:
+    """Document parameters with the tree's edges added to ``marker_tree``
+    (``{child: parent}`` labels, which the contact layer of ``bake`` keeps
+    whole).  A new edge replaces an older one of the same child; if the old
+    edges would then close a loop, only the new tree is kept."""
+    new = {labels[i]: labels[int(p)] for i, p in enumerate(parents) if p >= 0}
+    merged = {**dict(parameters.get("marker_tree", {})), **new}
+    if tree_has_loop(merged):
+        merged = new
+    return {**parameters, "marker_tree": merged}
+
+
+def tree_has_loop(tree: dict) -> bool:
+    """Whether ``{child: parent}`` leads from some marker back to itself."""
+    for start in tree:
+        seen = {start}
+        j = tree.get(start)
+        while j is not None:
+            if j in seen:
+                return True
+            seen.add(j)
+            j = tree.get(j)
+    return False

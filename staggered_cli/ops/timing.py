@@ -98,7 +98,10 @@ def change_refinements(
         tracks.append(track)
         for i in np.flatnonzero(np.any(old_ext != new_ext, axis=0)):
             warps[(tr.kind, int(tr.targets[i]))] = (old_ext[:, i], new_ext[:, i])
-    return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps))
+    changes = {}
+    if marker_parents is not None and doc.kind == "c3d" and bool(np.any(marker_parents >= 0)):
+        changes["parameters"] = marker_chain.with_marker_tree(doc.parameters, doc.target_names, marker_parents)
+    return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps), **changes)
 
 
 def static_variables(tr: Track, tolerance: float = 1e-9) -> np.ndarray:
