@@ -207,6 +207,8 @@ def edit_pose(
             d = _ominus(tr.kind, target, c)
             d[~m] = 0.0 if tr.kind == TRANSLATION else quat.identity()
             deltas.append(d)
+        if doc.kind == "c3d" and not joints:
+            deltas = [_planted_held(doc, k, deltas[0])]
         doc = _apply_delta(doc, k, deltas, on)
     if values is not None:
         cur = pose_values(doc, k, on)
@@ -306,6 +308,31 @@ def _marker_shapes(
         seen[:] = True
     centre = cur[0][seen].mean(axis=0)
     return [cur[0] - centre], [ref[0] - ref[0][seen].mean(axis=0)]
+
+
+def _planted_held(doc: Document, k: int, delta: np.ndarray) -> np.ndarray:
+    """C3D: the changes (M, 3) of a whole-body exaggeration with the markers
+    planted at the pose (inside a contact constraint) held where they are,
+    and the others shifted alike so that the changes still sum to zero over
+    the markers seen at the pose: the contact layer of ``bake`` would hold
+    the planted ones anyway, and the body's centre would then move."""
+    labels = list(doc.target_names)
+    t = doc.pose_t[k]
+    planted = np.zeros(len(labels), dtype=bool)
+    for c in doc.constraints:
+        if c.joint in labels and c.start - 1e-9 <= t <= c.end + 1e-9:
+            planted[labels.index(c.joint)] = True
+    if not planted.any() or planted.all():
+        return delta
+    frame = int(np.clip(np.rint(t / doc.frame_time), 0, doc.n_frames - 1))
+    seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
+    free = seen & ~planted
+    if not free.any():
+        return delta
+    out = delta.copy()
+    out[~planted] += delta[seen & planted].sum(axis=0) / free.sum()
+    out[planted] = 0.0
+    return out
 
 
 def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[np.ndarray]:
