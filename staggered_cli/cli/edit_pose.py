@@ -100,14 +100,14 @@ def edit_pose(
     k = check_pose_index(doc, pose)
     values = None
     if from_bvh is not None:
-        from ..errors import DataError
+        from ..errors import StaggeredError
         from ..io.files import display_name
         from .options import load_input
 
         other = load_input(from_bvh)
         try:
             values = ops.values_from_motion(doc, other, frame, name_list(joints), subtree)
-        except DataError as err:  # about the pose file, not the document
+        except StaggeredError as err:  # about the pose file, not the document
             raise err.with_source(display_name(from_bvh)) from None
     doc = ops.edit_pose(
         doc,

@@ -207,10 +207,11 @@ _EDIT_WORTH_WARNING = 1.0
 
 
 def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np.ndarray, todo: list) -> None:
-    """Say so (one warning line per pose and joint) where the contact layer
-    changes an edited joint's rotation at a pose by more than half of the
-    edit: a planted foot cannot keep a hip flexion, but the user must know.
-    The edit is the baked motion's difference from the source at the pose."""
+    """Say so, in one warning line, where the contact layer takes back more
+    than half of an edited joint's rotation at a pose: a planted foot cannot
+    keep a hip flexion, but the user must know.  The edit is the motion's
+    difference from the source at the pose before the layer; what is kept,
+    the difference after it."""
     from ..ik import two_bone_chain
 
     src = doc.source
@@ -220,7 +221,7 @@ def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np
     frames = np.clip(np.searchsorted(t, doc.pose_t), 0, len(t) - 1)
     near = np.clip(np.rint(t[frames] / doc.frame_time).astype(int), 0, doc.n_frames - 1)
     source = src.local_rotations()[near]  # (K, J, 4)
-    told: set[tuple[int, int]] = set()
+    cases: dict[tuple[int, int], tuple[float, float, int]] = {}  # (pose, joint) -> kept, edit, constraint
     for c in todo:
         n = doc.constraints.index(c)
         chain = two_bone_chain(sk, c.joint)
@@ -230,25 +231,43 @@ def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np
                 continue
             for j in (chain.upper, chain.middle, chain.lower):
                 edit = float(np.degrees(quat.angle_between(before[f, j], source[k, j])))
-                taken = float(np.degrees(quat.angle_between(after[f, j], before[f, j])))
-                if edit < _EDIT_WORTH_WARNING or taken <= 0.5 * edit or (k, j) in told:
-                    continue
-                told.add((k, j))
-                log.warning(
-                    "pose %d (%.3f s): the contact layer changes %s by %.1f° of its %.1f° edit to keep %s "
-                    "planted (constraint %d, %.3f to %.3f s); bake with --no-ik, or drop the constraint "
-                    "with `constraints --remove %d`",
-                    k,
-                    doc.pose_t[k],
-                    sk.names[j],
-                    taken,
-                    edit,
-                    c.joint,
-                    n,
-                    c.start,
-                    c.end,
-                    n,
-                )
+                kept = float(np.degrees(quat.angle_between(after[f, j], source[k, j])))
+                if edit >= _EDIT_WORTH_WARNING and kept < 0.5 * edit and (k, j) not in cases:
+                    cases[(k, j)] = (kept, edit, n)
+    if not cases:
+        return
+    removes = " ".join(f"--remove {n}" for n in sorted({n for _, _, n in cases.values()}))
+    if len(cases) == 1:
+        (((k, j), (kept, edit, n)),) = cases.items()
+        c = doc.constraints[n]
+        log.warning(
+            "pose %d (%.3f s): the contact layer leaves %s %.1f° of its %.1f° edit to keep %s planted "
+            "(constraint %d, %.3f to %.3f s); bake with --no-ik, or drop the constraint with `constraints %s`",
+            k,
+            doc.pose_t[k],
+            sk.names[j],
+            kept,
+            edit,
+            c.joint,
+            n,
+            c.start,
+            c.end,
+            removes,
+        )
+        return
+    shown = sorted(cases.items())
+    listed = ", ".join(
+        f"pose {k} {sk.names[j]} {kept:.1f}° of {edit:.1f}° (constraint {n})" for (k, j), (kept, edit, n) in shown[:4]
+    )
+    more = f" and {len(shown) - 4} more" if len(shown) > 4 else ""
+    log.warning(
+        "the contact layer takes back more than half of %d edited joint rotations at poses: %s%s; "
+        "bake with --no-ik, or drop the constraints with `constraints %s`",
+        len(shown),
+        listed,
+        more,
+        removes,
+    )
 
 
 def _plant_offset(pos: np.ndarray, path: np.ndarray, tolerance: float) -> np.ndarray:
