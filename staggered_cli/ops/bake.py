@@ -396,24 +396,24 @@ def _place_in_tree(
 
 
 def _move_subtree(out: np.ndarray, parents: np.ndarray, m: int, frames: np.ndarray, shift: np.ndarray, skip=-1) -> None:
-    """Translate the markers below ``m`` (not ``m`` itself, nor the branch of
-    ``skip``) by ``shift`` (n, 3) at ``frames``, in place."""
-    below = [i for i in range(len(parents)) if i != m and _is_below(parents, i, m) and not _is_below(parents, i, skip)]
-    for i in below:
-        out[frames, i] = out[frames, i] + shift
+    """Translate the markers below ``m`` (not ``m`` itself, nor ``skip`` and
+    the markers below it) by ``shift`` (n, 3) at ``frames``, in place."""
+    below = _below(parents, m)
+    if skip >= 0:
+        below = below[(below != skip) & ~np.isin(below, _below(parents, skip))]
+    if len(below):
+        out[np.ix_(frames, below)] += shift[:, None, :]
 
 
-def _is_below(parents: np.ndarray, i: int, m: int) -> bool:
-    if m < 0:
-        return False
-    j = i
-    for _ in range(len(parents)):
-        if j == m:
-            return True
-        j = int(parents[j])
-        if j < 0:
-            return False
-    return False
+def _below(parents: np.ndarray, m: int) -> np.ndarray:
+    """Indices of the markers below ``m`` in the tree ``parents`` (M,)."""
+    found = np.zeros(len(parents), dtype=bool)
+    front = np.flatnonzero(parents == m)
+    while len(front):
+        front = front[~found[front]]
+        found[front] = True
+        front = np.flatnonzero(np.isin(parents, front))
+    return np.flatnonzero(found)
 
 
 def _two_bone_points(a: np.ndarray, b: np.ndarray, c: np.ndarray, goal: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..representation import TRANSLATION, Track, evaluate, fit_track
+from ..representation import TRANSLATION, Track, evaluate_at, fit_track
 
 #: Frames (evenly spread) that judge how rigid a pair of markers is: enough
 #: for the spread of a distance, and (frames x markers²) stays small.
@@ -109,8 +109,15 @@ def recomposed(
     if not order:
         return track
     frame_t = np.asarray(frame_t, dtype=float)
-    t = np.unique(np.concatenate([frame_t, track.knot_t]))
-    values = evaluate(track, t)  # (N, V, 3)
+    # only the markers of the tree are sampled and refitted; the others keep their fit
+    keep = np.flatnonzero(parents < 0)
+    keep = keep[~np.isin(keep, parents[parents >= 0])]
+    involved = np.setdiff1d(np.arange(track.n_vars), keep)
+    var_k = np.repeat(np.arange(track.n_vars), np.diff(track.knot_ptr))
+    t = np.unique(np.concatenate([frame_t, track.knot_t[np.isin(var_k, involved)]]))
+    values = np.zeros((len(t), track.n_vars, 3))
+    flat = evaluate_at(track, np.repeat(involved, len(t)), np.tile(t, len(involved)))
+    values[:, involved] = flat.reshape(len(involved), len(t), 3).transpose(1, 0, 2)
     out = values.copy()
     if to_offsets and seen is not None and not seen.all():
         values = _gaps_filled_down_the_tree(values, parents, order, _seen_at(seen, frame_t, t), t)
@@ -121,6 +128,10 @@ def recomposed(
     knot_v = track.knot_v.copy()
     for i in range(track.n_vars):
         kt = track.knot_t[track.knots(i)]
+        if i in keep:  # refitted from nothing, then taken back from ``track``
+            samples_t.append(np.zeros(0))
+            samples_v.append(np.zeros((0, 3)))
+            continue
         st = np.unique(np.concatenate([frame_t, kt]))
         rows = np.searchsorted(t, st)
         samples_t.append(st)
@@ -138,9 +149,6 @@ def recomposed(
         samples_t,
         samples_v,
     )
-    # markers outside the tree keep their own fit exactly
-    keep = np.flatnonzero(parents < 0)
-    keep = keep[~np.isin(keep, parents[parents >= 0])]
     return _with_variables(fitted, track, keep)
 
 
