@@ -24,6 +24,7 @@ from click.testing import CliRunner
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.document import to_parts
+from staggered_cli.errors import DataError
 from staggered_cli.io.bvh import bvh_bytes, read_bvh
 from staggered_cli.io.c3d import read_c3d
 from staggered_cli.io.document import document_bytes
@@ -343,7 +344,6 @@ def test_bake_warns_when_the_contact_layer_takes_back_an_edit(walk, tmp_path, ca
 
 def test_the_marker_tree_is_kept_in_the_document_and_checked_when_read():
     from staggered_cli.document import from_parts
-    from staggered_cli.errors import DataError
 
     m, doc, _ = c3d_doc(EB015)
     edited = timing.succession(doc, 0.02, 1.0, chain=["PV1", "RTH1", "RSK1"], clamp=True)
@@ -353,3 +353,20 @@ def test_the_marker_tree_is_kept_in_the_document_and_checked_when_read():
         manifest["parameters"]["marker_tree"] = bad
         with pytest.raises(DataError, match=needle):
             from_parts(manifest, arrays)
+
+
+def test_from_bvh_refuses_a_joint_under_another_parent(walk, tmp_path):
+    m, doc = walk
+    sk = m.skeleton
+    parents = sk.parents.copy()
+    j = sk.index("RightUpLeg")
+    parents[j] = sk.index("LHipJoint")  # same names and offsets, another hierarchy
+    moved = type(m)(
+        type(sk)(sk.names, parents, sk.offsets, sk.channels, sk.end_parents, sk.end_offsets),
+        m.channels,
+        m.frame_time,
+        m.frame_time_text,
+        m.number_format,
+    )
+    with pytest.raises(DataError, match="'RightUpLeg': its parent is 'LHipJoint', not 'RHipJoint'"):
+        E.values_from_motion(doc, moved, 0)

@@ -418,12 +418,14 @@ def check_same_bones(doc: Document, motion, frame: int) -> None:
     """Refuse a pose file whose bones differ from the document's.
 
     Every joint of the document that the file has (matched by name) is
-    compared, in hierarchy order, by its translation from its parent: the
-    file's at ``frame`` against the document's source at its first frame.
-    Joints whose translation moves in either clip (the root, Bandai's
-    ``Hips``) carry the motion's place, not a bone, and are skipped.  The
-    first joint that differs by more than :data:`BONE_TOLERANCE` of the
-    figure height raises a DataError naming it and by how much.
+    compared, in hierarchy order, by its parent's name and by its
+    translation from its parent: the file's at ``frame`` against the
+    document's source at its first frame.  Joints whose translation moves
+    in either clip (the root, Bandai's ``Hips``) carry the motion's place,
+    not a bone, and are not compared by translation.  The first joint that
+    differs (another parent, or a translation more than
+    :data:`BONE_TOLERANCE` of the figure height away) raises a DataError
+    naming it and by how much.
     """
     src = doc.source
     ours, theirs = src.skeleton, motion.skeleton
@@ -435,6 +437,11 @@ def check_same_bones(doc: Document, motion, frame: int) -> None:
         i = index.get(name)
         if i is None or ours.parents[j] < 0 or theirs.parents[i] < 0:
             continue
+        mine, its = ours.names[ours.parents[j]], theirs.names[theirs.parents[i]]
+        if mine != its:
+            raise DataError(
+                f"the BVH's skeleton differs from the document's at joint {name!r}: its parent is {its!r}, not {mine!r}"
+            )
         if np.ptp(here[:, j], axis=0).max() > still or np.ptp(there[:, i], axis=0).max() > still:
             continue
         off = float(np.linalg.norm(there[frame, i] - here[0, j]))
