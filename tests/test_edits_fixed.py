@@ -370,3 +370,11 @@ def test_from_bvh_refuses_a_joint_under_another_parent(walk, tmp_path):
     )
     with pytest.raises(DataError, match="'RightUpLeg': its parent is 'LHipJoint', not 'RHipJoint'"):
         E.values_from_motion(doc, moved, 0)
+
+
+def test_a_chain_names_each_marker_once():
+    from staggered_cli.errors import UsageError
+
+    _, doc, _ = c3d_doc(EB015)
+    with pytest.raises(UsageError, match="'PV1' appears twice in --chain"):
+        timing.succession(doc, 0.01, 1.0, chain=["PV1", "RTH1", "PV1"])

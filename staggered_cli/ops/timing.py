@@ -279,6 +279,8 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
         for d, name in enumerate(chain):
             if name not in names:
                 raise UsageError(f"unknown joint or marker {name!r} in --chain")
+            if name in chain[:d]:
+                raise UsageError(f"{name!r} appears twice in --chain")
             depth_of[names.index(name)] = d
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
