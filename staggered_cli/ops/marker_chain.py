@@ -26,6 +26,7 @@ from ..representation import TRANSLATION, Track, evaluate_at, fit_track
 #: Frames (evenly spread) that judge how rigid a pair of markers is: enough
 #: for the spread of a distance, and (frames x markers²) stays small.
 _TREE_FRAMES = 400
+_TREE_VALUES = 4_000_000  # and at most this many distances at once (32 MB)
 
 
 def chain_parents(n_markers: int, chain: list[int]) -> np.ndarray:
@@ -45,9 +46,12 @@ def rigid_tree(points: np.ndarray) -> np.ndarray:
     T, M, _ = points.shape
     if M < 2:
         return np.full(M, -1, dtype=int)
-    points = points[np.unique(np.linspace(0, T - 1, min(T, _TREE_FRAMES)).astype(int))]
+    frames = min(T, _TREE_FRAMES, max(10, _TREE_VALUES // (M * M)))
+    points = points[np.unique(np.linspace(0, T - 1, frames).astype(int))]
     with np.errstate(invalid="ignore"):
-        d = np.linalg.norm(points[:, :, None] - points[:, None, :], axis=-1)  # (T, M, M)
+        sq = np.sum(points * points, axis=-1)
+        d2 = sq[:, :, None] + sq[:, None, :] - 2.0 * np.einsum("tmk,tnk->tmn", points, points)
+        d = np.sqrt(np.maximum(d2, 0.0))  # (frames, M, M), NaN where a marker is missing
         seen = np.isfinite(d)
         n = seen.sum(axis=0)
         mean = np.where(seen, d, 0.0).sum(axis=0) / np.maximum(n, 1)
