@@ -627,6 +627,16 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             isinstance(joints_param, list) and all(isinstance(j, str) for j in joints_param),
             "parameters: contact_joints is not a list of names",
         )
+        tree = parameters.get("marker_tree", {})
+        need(
+            isinstance(tree, dict)
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in tree.items())
+            and set(tree) | set(tree.values()) <= joints,
+            "parameters: marker_tree is not a map of marker labels to marker labels",
+        )
+        from .ops.marker_chain import tree_has_loop
+
+        need(not tree_has_loop(tree), "parameters: marker_tree has a loop")
         for key in ("min_contact", "contact_tolerance"):
             value = parameters.get(key, 0.0)
             need(

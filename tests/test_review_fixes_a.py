@@ -183,8 +183,9 @@ def test_from_bvh_takes_values_by_joint_name(run_doc, tmp_path):
             assert np.degrees(quat.angle_between(rot[0, j], rot0[0, j])) < 1e-6
             np.testing.assert_allclose(tr[0, j], tr0[0, j], atol=1e-6)
     # the whole pose (no --joints) works as well: every joint is in the file
+    # (with root=True the root's place and heading come from the file too)
     values = E.values_from_motion(doc, blender, frame)
-    whole = E.edit_pose(doc, k, values=values)
+    whole = E.edit_pose(doc, k, values=values, root=True)
     rot, tr = D.local_pose(whole, doc.pose_t[k : k + 1])
     assert np.degrees(quat.angle_between(rot[0], blender.local_rotations()[frame])).max() < 1e-6
     np.testing.assert_allclose(tr[0], blender.local_translations()[frame], atol=1e-6)

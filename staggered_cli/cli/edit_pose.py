@@ -49,6 +49,11 @@ from .options import force_option, format_option, input_argument, output_option
     "--from-bvh", "from_bvh", metavar="FILE", help="Set the pose from a frame of a BVH with the same skeleton."
 )
 @click.option("--frame", type=int, default=None, help="Frame of --from-bvh (0-based).")
+@click.option(
+    "--root",
+    is_flag=True,
+    help="With --from-bvh: take the root's place and heading from the file too (default: keep the document's).",
+)
 @click.option("--time", "new_time", metavar="T", help="Move the pose to T seconds.")
 @click.option("--shift", metavar="DT", help="Move the pose by DT seconds.")
 @output_option
@@ -66,6 +71,7 @@ def edit_pose(
     subtree,
     from_bvh,
     frame,
+    root,
     new_time,
     shift,
     output,
@@ -84,6 +90,8 @@ def edit_pose(
         raise click.UsageError("give --time or --shift, not both")
     if (from_bvh is None) != (frame is None):
         raise click.UsageError("--from-bvh and --frame go together")
+    if root and from_bvh is None:
+        raise click.UsageError("--root goes with --from-bvh")
     if not (rot or tra or w is not None or from_bvh or new_time is not None or shift is not None):
         raise click.UsageError("nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --time or --shift")
     doc = read_document(input_path)
@@ -92,10 +100,15 @@ def edit_pose(
     k = check_pose_index(doc, pose)
     values = None
     if from_bvh is not None:
+        from ..errors import StaggeredError
+        from ..io.files import display_name
         from .options import load_input
 
         other = load_input(from_bvh)
-        values = ops.values_from_motion(doc, other, frame, name_list(joints), subtree)
+        try:
+            values = ops.values_from_motion(doc, other, frame, name_list(joints), subtree)
+        except StaggeredError as err:  # about the pose file, not the document
+            raise err.with_source(display_name(from_bvh)) from None
     doc = ops.edit_pose(
         doc,
         k,
@@ -107,6 +120,7 @@ def edit_pose(
         joints=name_list(joints),
         subtree=subtree,
         values=values,
+        root=root,
     )
     if new_time is not None or shift is not None:
         t = finite(new_time, "--time") if new_time is not None else doc.pose_t[k] + finite(shift, "--shift")

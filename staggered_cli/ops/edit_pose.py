@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import quat
 from ..document import Document, check_pose_index
-from ..errors import UsageError
+from ..errors import DataError, UsageError
 from ..representation import ROTATION, TRANSLATION, Track, evaluate, pose_arrays
 
 #: Bounds of geometric edits: beyond them a value is a typo, not a pose.
@@ -165,6 +165,7 @@ def edit_pose(
     joints: list[str] | None = None,
     subtree: bool = False,
     values: list[np.ndarray] | None = None,
+    root: bool = False,
 ) -> Document:
     """Geometric edit of pose ``k``.
 
@@ -181,7 +182,8 @@ def edit_pose(
         :func:`exaggeration_mask`).  A rotation's scaled difference wraps
         past a half turn, so W then 1/W restores differences under 180°/max(W, 1).
     values : per track (V, D) target values (e.g. from another BVH), applied
-        where ``joints`` allows.
+        where ``joints`` allows.  The pose keeps its place and heading (see
+        :func:`_keep_place`) unless ``root``.
     joints, subtree : restrict exaggeration and ``values`` to part of the body.
     """
     if on not in ("true", "extreme"):
@@ -196,6 +198,8 @@ def edit_pose(
             raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
         ref = reference_values(doc, k, relative_to, on)
         cur = pose_values(doc, k, on)
+        if doc.kind == "c3d":
+            cur, ref = _marker_shapes(doc, k, cur, ref)
         mask = exaggeration_mask(doc, joints, subtree)
         deltas = []
         for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
@@ -203,10 +207,14 @@ def edit_pose(
             d = _ominus(tr.kind, target, c)
             d[~m] = 0.0 if tr.kind == TRANSLATION else quat.identity()
             deltas.append(d)
+        if doc.kind == "c3d" and not joints:
+            deltas = [_planted_held(doc, k, deltas[0])]
         doc = _apply_delta(doc, k, deltas, on)
     if values is not None:
         cur = pose_values(doc, k, on)
         mask = joint_mask(doc, joints, subtree)
+        if not root and doc.kind == "bvh":
+            values = _keep_place(doc, cur, values)
         deltas = []
         for tr, c, v, m in zip(doc.tracks, cur, values, mask, strict=True):
             d = _ominus(tr.kind, v, c)
@@ -214,6 +222,117 @@ def edit_pose(
             deltas.append(d)
         doc = _apply_delta(doc, k, deltas, on)
     return doc
+
+
+def place_joint(doc: Document) -> int:
+    """The joint that carries the figure's place: the first joint, in
+    hierarchy order, whose translation moves over the clip (CMU's root
+    ``Hips``, Bandai's ``Hips`` below a still ``joint_Root``); the root when
+    none does."""
+    tra = doc.source.local_translations()
+    moving = np.ptp(tra, axis=0).max(axis=1) > 1e-6 * doc.source.figure_height()
+    return int(np.argmax(moving)) if moving.any() else 0
+
+
+def up_axis(doc: Document) -> np.ndarray:
+    """Unit up vector (3,) of a BVH document's figure (see :mod:`..contacts`)."""
+    from ..contacts import up_direction
+
+    return up_direction(doc.source.world()[1], doc.source.figure_height())
+
+
+def heading_split(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``q = heading ⊗ rest``: the rotation about ``up`` (the twist of a
+    swing-twist split) and what remains, which turns nothing about ``up``."""
+    v = np.sum(q[..., 1:] * up, axis=-1, keepdims=True) * up
+    twist = np.concatenate([q[..., :1], v], axis=-1)
+    n = np.linalg.norm(twist, axis=-1, keepdims=True)
+    twist = np.where(n > 1e-12, twist / np.maximum(n, 1e-300), quat.identity(q.shape[:-1]))
+    return twist, quat.mul(quat.conj(twist), q)
+
+
+def _keep_place(doc: Document, cur: list[np.ndarray], values: list[np.ndarray]) -> list[np.ndarray]:
+    """``values`` of a whole-body pose with the document's place and heading.
+
+    The joints from the root down to the :func:`place_joint` keep the
+    document's translations, the joints above it its rotations too, and the
+    place joint's world rotation is the document's heading (about the up
+    axis) times the rest of the file's world rotation: the pose lands where
+    the figure is, facing where it faces.
+    """
+    sk = doc.source.skeleton
+    place = place_joint(doc)
+    chain = [place]
+    while sk.parents[chain[-1]] >= 0:
+        chain.append(int(sk.parents[chain[-1]]))
+    out = [v.copy() for v in values]
+
+    def world_rotation(vals: list[np.ndarray]) -> np.ndarray:
+        g = quat.identity()
+        for j in reversed(chain):
+            for tr, v in zip(doc.tracks, vals, strict=True):
+                if tr.kind == ROTATION and j in tr.targets:
+                    g = quat.mul(g, v[list(tr.targets).index(j)])
+        return g
+
+    up = up_axis(doc)
+    heading, _ = heading_split(world_rotation(cur), up)
+    _, rest = heading_split(world_rotation(values), up)
+    above = quat.identity()
+    for j in reversed(chain[1:]):
+        for tr, c in zip(doc.tracks, cur, strict=True):
+            if tr.kind == ROTATION and j in tr.targets:
+                above = quat.mul(above, c[list(tr.targets).index(j)])
+    for tr, c, o in zip(doc.tracks, cur, out, strict=True):
+        for j in chain:
+            if j not in tr.targets:
+                continue
+            i = list(tr.targets).index(j)
+            if tr.kind == TRANSLATION or j != place:
+                o[i] = c[i]
+            else:
+                o[i] = quat.hemisphere(quat.mul(quat.conj(above), quat.mul(heading, rest)), c[i])
+    return out
+
+
+def _marker_shapes(
+    doc: Document, k: int, cur: list[np.ndarray], ref: list[np.ndarray]
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """C3D: the pose and the reference as shapes, each relative to its own
+    body centre (the centroid of the markers captured at the pose's frame,
+    gaps ignored), so that exaggerating scales the shape and not the place:
+    the changes the edit makes then sum to zero over those markers."""
+    frame = int(np.clip(np.rint(doc.pose_t[k] / doc.frame_time), 0, doc.n_frames - 1))
+    seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
+    if not seen.any():
+        seen[:] = True
+    centre = cur[0][seen].mean(axis=0)
+    return [cur[0] - centre], [ref[0] - ref[0][seen].mean(axis=0)]
+
+
+def _planted_held(doc: Document, k: int, delta: np.ndarray) -> np.ndarray:
+    """C3D: the changes (M, 3) of a whole-body exaggeration with the markers
+    planted at the pose (inside a contact constraint) held where they are,
+    and the others shifted alike so that the changes still sum to zero over
+    the markers seen at the pose: the contact layer of ``bake`` would hold
+    the planted ones anyway, and the body's centre would then move."""
+    labels = list(doc.target_names)
+    t = doc.pose_t[k]
+    planted = np.zeros(len(labels), dtype=bool)
+    for c in doc.constraints:
+        if c.joint in labels and c.start - 1e-9 <= t <= c.end + 1e-9:
+            planted[labels.index(c.joint)] = True
+    if not planted.any() or planted.all():
+        return delta
+    frame = int(np.clip(np.rint(t / doc.frame_time), 0, doc.n_frames - 1))
+    seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
+    free = seen & ~planted
+    if not free.any():
+        return delta
+    out = delta.copy()
+    out[~planted] += delta[seen & planted].sum(axis=0) / free.sum()
+    out[planted] = 0.0
+    return out
 
 
 def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[np.ndarray]:
@@ -284,7 +403,54 @@ def values_from_motion(
             "the BVH has a different skeleton: it lacks joint"
             f"{'s' if len(missing) > 1 else ''} {', '.join(missing[:5])}{'...' if len(missing) > 5 else ''}"
         )
+    check_same_bones(doc, motion, frame)
     return out
+
+
+#: A bone of the pose file may differ from the document's by this fraction
+#: of the figure height: the same rig on another actor differs by up to
+#: 3.5 % (CMU subjects 02, 05 and 115), a file with other axes (a Blender
+#: export turns Y-up offsets to Z-up) by 20 % and more on every long bone.
+BONE_TOLERANCE = 0.05
+
+
+def check_same_bones(doc: Document, motion, frame: int) -> None:
+    """Refuse a pose file whose bones differ from the document's.
+
+    Every joint of the document that the file has (matched by name) is
+    compared, in hierarchy order, by its parent's name and by its
+    translation from its parent: the file's at ``frame`` against the
+    document's source at its first frame.  Joints whose translation moves
+    in either clip (the root, Bandai's ``Hips``) carry the motion's place,
+    not a bone, and are not compared by translation.  The first joint that
+    differs (another parent, or a translation more than
+    :data:`BONE_TOLERANCE` of the figure height away) raises a DataError
+    naming it and by how much.
+    """
+    src = doc.source
+    ours, theirs = src.skeleton, motion.skeleton
+    size = float(src.figure_height())
+    here, there = src.local_translations(), motion.local_translations()
+    still = 1e-6 * size
+    index = {n: j for j, n in enumerate(theirs.names)}
+    for j, name in enumerate(ours.names):
+        i = index.get(name)
+        if i is None or ours.parents[j] < 0 or theirs.parents[i] < 0:
+            continue
+        mine, its = ours.names[ours.parents[j]], theirs.names[theirs.parents[i]]
+        if mine != its:
+            raise DataError(
+                f"the BVH's skeleton differs from the document's at joint {name!r}: its parent is {its!r}, not {mine!r}"
+            )
+        if np.ptp(here[:, j], axis=0).max() > still or np.ptp(there[:, i], axis=0).max() > still:
+            continue
+        off = float(np.linalg.norm(there[frame, i] - here[0, j]))
+        if off > BONE_TOLERANCE * size:
+            raise DataError(
+                f"the BVH's skeleton differs from the document's at joint {name!r}: its offset is "
+                f"{off:.4g} file units ({100 * off / size:.0f} % of the figure height) from the document's "
+                f"(other axes or another rig?); at most {100 * BONE_TOLERANCE:g} % is accepted"
+            )
 
 
 def true_pose(doc: Document, k: int) -> list[np.ndarray]:

@@ -17,6 +17,7 @@ import numpy as np
 from ..document import Document, check_pose_index, reprioritized
 from ..errors import KnotOrderError, UsageError
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
+from . import marker_chain
 from .edit_pose import joint_mask
 
 log = logging.getLogger(__name__)
@@ -60,7 +61,9 @@ def select_poses(
     return mask
 
 
-def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False) -> Document:
+def change_refinements(
+    doc: Document, delta: np.ndarray, *, clamp: bool = False, marker_parents: np.ndarray | None = None
+) -> Document:
     """Add ``delta`` (K, V) seconds to the refinements, keeping the knots in order.
 
     A knot that would cross a neighbouring knot raises KnotOrderError, or
@@ -68,7 +71,10 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
     to a neighbouring pose than to their own are warned about in one line
     (logging): how many, and the largest.
     Contact constraints move with the timing of the joint that carries them
-    (see :func:`_warp_constraints`).
+    (see :func:`_warp_constraints`).  In a C3D document ``marker_parents``
+    (M,) (-1: none) retimes markers as a kinematic chain or tree: each
+    marker's offset from its parent is what is retimed (see
+    :mod:`.marker_chain`).
     """
     delta = np.asarray(delta, dtype=float)
     if delta.shape != (doc.n_poses, len(doc.variable_names)):
@@ -83,8 +89,14 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
         if not np.any(d != 0.0):
             tracks.append(tr)
             continue
+        tree = marker_parents is not None and doc.kind == "c3d" and bool(np.any(marker_parents >= 0))
+        if tree:
+            seen = np.all(np.isfinite(doc.source.points), axis=2)
+            tr = marker_chain.recomposed(tr, marker_parents, doc.frame_times, to_offsets=True, seen=seen)
         track, old_ext, new_ext = _retime_track(doc, tr, d, clamp)
         far += _far_knots(doc, tr, old_ext - doc.pose_t[:, None], new_ext - doc.pose_t[:, None])
+        if tree:
+            track = marker_chain.recomposed(track, marker_parents, doc.frame_times, to_offsets=False)
         tracks.append(track)
         for i in np.flatnonzero(np.any(old_ext != new_ext, axis=0)):
             warps[(tr.kind, int(tr.targets[i]))] = (old_ext[:, i], new_ext[:, i])
@@ -101,7 +113,10 @@ def change_refinements(doc: Document, delta: np.ndarray, *, clamp: bool = False)
             k,
             r,
         )
-    return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps))
+    changes = {}
+    if marker_parents is not None and doc.kind == "c3d" and bool(np.any(marker_parents >= 0)):
+        changes["parameters"] = marker_chain.with_marker_tree(doc.parameters, doc.target_names, marker_parents)
+    return doc.with_tracks(tuple(tracks), constraints=_warp_constraints(doc, warps), **changes)
 
 
 def static_variables(tr: Track, tolerance: float = 1e-9) -> np.ndarray:
@@ -261,7 +276,10 @@ def succession(
     if not np.all(np.isfinite(step)) or np.abs(step).max(initial=0.0) > _longest_shift(doc):
         raise UsageError(f"--offset {offset:g} with --power {power:g} shifts knots beyond the clip's length")
     delta = poses[:, None] * step[None, :]
-    return change_refinements(doc, delta, clamp=clamp)
+    parents = None
+    if doc.kind == "c3d" and chain:
+        parents = marker_chain.chain_parents(len(doc.target_names), [doc.target_names.index(n) for n in chain])
+    return change_refinements(doc, delta, clamp=clamp, marker_parents=parents)
 
 
 def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.ndarray:
@@ -274,6 +292,8 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
         for d, name in enumerate(chain):
             if name not in names:
                 raise UsageError(f"unknown joint or marker {name!r} in --chain")
+            if name in chain[:d]:
+                raise UsageError(f"{name!r} appears twice in --chain")
             depth_of[names.index(name)] = d
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
@@ -297,7 +317,9 @@ def randomize(
 ) -> Document:
     """Random offsets: ``r[k,i] += uniform(-tau, tau)`` for the chosen joints
     (all by default; with ``subtree`` their descendants too), reproducible by
-    ``seed``."""
+    ``seed``.  C3D markers are retimed as a kinematic chain: the markers of
+    ``joints`` in the order given, or all markers joined by
+    :func:`.marker_chain.rigid_tree`."""
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
         raise UsageError(f"--tau must be between 0 and {_longest_shift(doc):.4f} s (the clip's length), got {tau}")
     mask = np.concatenate(joint_mask(doc, joints, subtree))  # the same partial poses as edit-pose
@@ -306,7 +328,15 @@ def randomize(
     rng = np.random.default_rng(seed)
     noise = rng.uniform(-tau, tau, size=(doc.n_poses, len(doc.variable_names)))
     delta = noise * poses[:, None] * mask[None, :]
-    return change_refinements(doc, delta, clamp=clamp)
+    parents = None
+    if doc.kind == "c3d":
+        names = doc.target_names
+        parents = (
+            marker_chain.chain_parents(len(names), list(dict.fromkeys(names.index(n) for n in joints)))
+            if joints
+            else marker_chain.rigid_tree(doc.source.points)
+        )
+    return change_refinements(doc, delta, clamp=clamp, marker_parents=parents)
 
 
 def retime_pose(doc: Document, k: int, new_time: float) -> Document:
