@@ -29,6 +29,8 @@ import numpy as np
 from .motion import BvhMotion, MarkerMotion
 from .representation import ROTATION
 
+#: The proxy keeps the variables that make up this share of the body's motion.
+KEEP = 0.999
 #: Rough bound on the number of floats one batch of segment costs gathers.
 _BATCH = 1 << 21
 
@@ -77,7 +79,7 @@ def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
     return np.asarray(out, dtype=float)
 
 
-def proxy_from_dense(variables, w: np.ndarray, keep: float = 0.999) -> Proxy:
+def proxy_from_dense(variables, w: np.ndarray, keep: float | None = None) -> Proxy:
     """The proxy of dense variables ``(kind, names, targets, dense (T, V, D))``.
 
     Only the variables that matter are kept: those that move, heaviest first
@@ -93,6 +95,7 @@ def proxy_from_dense(variables, w: np.ndarray, keep: float = 0.999) -> Proxy:
         cols.append(d)
     if not cols:
         return Proxy(np.zeros((0, 0, 4), dtype=np.float32), np.zeros(0), np.zeros(0, dtype=int))
+    keep = KEEP if keep is None else keep
     x = np.concatenate(cols, axis=1)
     w = np.asarray(w, dtype=float)
     path = np.sum(np.linalg.norm(np.diff(x, axis=0), axis=2), axis=0) if len(x) > 1 else np.zeros(x.shape[1])
