@@ -25,20 +25,24 @@ when ``POINT:SCALE < 0``, a 2-byte integer otherwise.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
 import struct
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DataError
 from ..motion import MarkerMotion
+from .isolate import ChildFailed, fd_path, run_isolated
 
-__all__ = ["read_c3d", "write_c3d", "c3d_bytes", "check_c3d"]
+log = logging.getLogger(__name__)
+
+__all__ = ["read_c3d", "write_c3d", "c3d_bytes", "check_c3d", "rate_ok", "MIN_RATE", "MAX_RATE"]
 
 _BLOCK = 512
 _KEY_BYTE = 0x50  # second byte of every C3D file
@@ -51,6 +55,10 @@ MAX_FRAMES = 10**8
 MAX_MAGNITUDE = 1e12
 #: Most frames ezc3d 1.7.2 can write so that they read back (16-bit counts).
 MAX_WRITE_FRAMES = 65535
+#: Marker frame rates (POINT:RATE, Hz) read and written: anything outside is
+#: not a capture (and 1e-308 Hz is 0 once stored as a 4-byte float).
+MIN_RATE = 1.0
+MAX_RATE = 10_000.0
 #: C3D stores the dimensions of a parameter in bytes: at most 255 labels per
 #: LABELS parameter, the rest continue in LABELS2, LABELS3, ...
 _LABELS_PER_PARAMETER = 255
@@ -107,6 +115,13 @@ def read_c3d(
         raw = bytes(data)
 
     layout = _check_layout(raw, source_name)
+    motion = _isolated(lambda: _markers(raw, layout, source_name), source_name, "reader", len(raw))
+    return replace(motion, source=raw)
+
+
+def _markers(raw: bytes, layout: _Layout, source_name: str) -> MarkerMotion:
+    """The markers of ``raw`` as ezc3d reads them (``source`` left empty);
+    runs in the child of :func:`_isolated`."""
     c3d = _load_ezc3d(raw, source_name)
 
     parameters = c3d["parameters"]
@@ -148,7 +163,6 @@ def read_c3d(
         points=points,
         rate=float(rate),
         units=_text(str(units[0])).strip(),
-        source=raw,
     )
 
 
@@ -245,6 +259,16 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
         raise DataError(f"corrupt C3D: claims {n_frames} frames (more than {MAX_FRAMES})", source)
 
     point_rate = param("POINT:RATE", h_rate)
+    if n_points == 0:
+        raise DataError(
+            "no markers in this C3D (POINT:USED is 0" + (f", {n_analogs} analog channels only)" if n_analogs else ")"),
+            source,
+        )
+    if n_frames == 0:
+        raise DataError("no frames in this C3D", source)
+    rate = point_rate or h_rate  # ezc3d: a zero POINT:RATE leaves the header's
+    if not rate_ok(rate):
+        raise DataError(f"frame rate {rate:g} Hz (POINT:RATE) is outside {RATE_LIMITS}", source)
     analog_rate = param("ANALOG:RATE", 0.0)
     analog_per_frame = h_analog_per_frame
     if np.isfinite(point_rate) and np.isfinite(analog_rate) and int(point_rate) != 0:
@@ -296,6 +320,15 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
     return _Layout(processor, n_points, n_analogs, analog_per_frame, n_frames, value_bytes, data_offset)
 
 
+def rate_ok(rate: float) -> bool:
+    """Whether ``rate`` Hz is a marker rate C3D files are read and written at
+    (``MIN_RATE`` to ``MAX_RATE``; False for NaN)."""
+    return bool(MIN_RATE <= rate <= MAX_RATE)
+
+
+RATE_LIMITS = f"{MIN_RATE:g} to {MAX_RATE:g} Hz"
+
+
 def _long_frame_count(params: dict[str, float]) -> int:
     """Frame count from POINT:LONG_FRAMES or the TRIAL fields (0 if absent)."""
     count = 0
@@ -342,6 +375,71 @@ _TWO_WORD_PARAMETERS = {("TRIAL", "ACTUAL_START_FIELD"), ("TRIAL", "ACTUAL_END_F
 
 
 _PARAMETER_TYPES = {-1: 1, 1: 1, 2: 2, 4: 4}  # C3D type code -> bytes per value
+_CHAR, _BYTE, _INT, _FLOAT = -1, 1, 2, 4
+_TYPE_NAMES = {_CHAR: "char", _BYTE: "byte", _INT: "int", _FLOAT: "float"}
+_INTEGER = (_INT, _BYTE)
+#: The parameters ezc3d 1.7.2 (and this module) read: the C3D types read
+#: (ezc3d's valuesAsInt() takes int and byte, valuesAsDouble() float,
+#: valuesAsString() char; another type throws, or is misread by the code
+#: here) and the number of values indexed without a bounds check
+#: (``valuesAsInt()[0]`` of an empty array is a segfault).
+_READ_AS: dict[tuple[str, str], tuple[tuple[int, ...], int]] = {
+    ("POINT", "USED"): (_INTEGER, 1),
+    ("POINT", "FRAMES"): ((_INT, _BYTE, _FLOAT), 1),  # float: the c3d.org way past 65535 (ezc3d refuses it)
+    ("POINT", "SCALE"): ((_FLOAT,), 1),
+    ("POINT", "RATE"): ((_FLOAT,), 1),
+    ("POINT", "DATA_START"): (_INTEGER, 1),
+    ("POINT", "LONG_FRAMES"): ((_FLOAT, _INT, _BYTE), 1),
+    ("ANALOG", "USED"): (_INTEGER, 1),
+    ("ANALOG", "RATE"): ((_FLOAT,), 1),
+    ("ANALOG", "GEN_SCALE"): ((_FLOAT,), 1),
+    ("ANALOG", "BITS"): (_INTEGER, 0),
+    ("ANALOG", "FORMAT"): ((_CHAR,), 0),
+    ("TRIAL", "ACTUAL_START_FIELD"): (_INTEGER, 2),
+    ("TRIAL", "ACTUAL_END_FIELD"): (_INTEGER, 2),
+    ("ROTATION", "USED"): (_INTEGER, 1),
+    ("ROTATION", "DATA_START"): (_INTEGER, 1),
+    ("ROTATION", "RATIO"): (_INTEGER, 1),
+    ("ROTATION", "RATE"): ((_FLOAT,), 1),
+    ("MANUFACTURER", "COMPANY"): ((_CHAR,), 0),
+}
+#: Parameters continued by NAME2, NAME3, ... (ezc3d reads them all, in order).
+_READ_AS_NUMBERED: dict[tuple[str, str], tuple[int, ...]] = {
+    ("POINT", "LABELS"): (_CHAR,),
+    ("POINT", "DESCRIPTIONS"): (_CHAR,),
+    ("POINT", "UNITS"): (_CHAR,),
+    ("POINT", "SCALE"): (_FLOAT,),
+    ("ANALOG", "LABELS"): (_CHAR,),
+    ("ANALOG", "DESCRIPTIONS"): (_CHAR,),
+    ("ANALOG", "UNITS"): (_CHAR,),
+    ("ANALOG", "SCALE"): (_FLOAT,),
+    ("ANALOG", "OFFSET"): _INTEGER,
+}
+_NUMBERED = re.compile(r"(.*?)([2-9]|[1-9][0-9]+)")
+
+
+def _check_read_as(group: str, name: str, ptype: int, count: int, source: str) -> None:
+    """Refuse a parameter that ezc3d reads as another type, or with fewer values than it indexes."""
+    key = (group, name)
+    rule = _READ_AS.get(key)
+    if rule is None:
+        m = _NUMBERED.fullmatch(name)
+        base = (group, m.group(1)) if m else None
+        types = _READ_AS_NUMBERED.get(key) or (_READ_AS_NUMBERED.get(base) if base else None)
+        if types is None:
+            return
+        rule = (types, 0)
+    types, least = rule
+    shown = f"{group}:{name}"
+    if ptype not in types:
+        expected = " or ".join(_TYPE_NAMES[t] for t in types)
+        raise DataError(
+            f"unsupported C3D: parameter {shown} is of type {_TYPE_NAMES.get(ptype, ptype)}, readers expect {expected}",
+            source,
+        )
+    if count < least:
+        held = "no value" if count == 0 else f"{count} value"
+        raise DataError(f"corrupt C3D: parameter {shown} holds {held} (at least {least} expected)", source)
 
 
 def _read_sizing_parameters(
@@ -436,6 +534,7 @@ def _read_sizing_parameters(
             )
         key = (group_names[gid], name)
         counts[f"{key[0]}:{key[1]}"] = count
+        _check_read_as(key[0], key[1], ptype, count, source)
         if key not in _SIZING_PARAMETERS or count == 0:
             continue
         if key in _TWO_WORD_PARAMETERS:
@@ -456,20 +555,72 @@ def _read_sizing_parameters(
 
 
 def _load_ezc3d(raw: bytes, source: str):
-    """ezc3d's c3d object of ``raw`` (ezc3d only reads paths: use a temp file)."""
-    import ezc3d  # deferred: importing it costs ~0.1 s, not needed for BVH work
+    """ezc3d's c3d object of ``raw``.
 
-    fd, tmp = tempfile.mkstemp(suffix=".c3d", prefix="staggered-")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(raw)
+    ezc3d only reads paths: it is given one to an anonymous file (a memfd,
+    else a temporary file unlinked as soon as it is created), so that no copy
+    of the input is ever left in the temporary folder, whatever kills us.
+    """
+    import ezc3d
+
+    with _anonymous_file(raw) as fd:
         try:
-            return ezc3d.c3d(tmp)
+            return ezc3d.c3d(fd_path(fd))
         except Exception as exc:  # ezc3d raises OSError/RuntimeError/ValueError from C++
             message = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"ezc3d cannot read this C3D: {message}", source) from None
-    finally:
-        os.unlink(tmp)
+
+
+class _anonymous_file:
+    """A descriptor of a file without a name holding ``data`` (context manager)."""
+
+    def __init__(self, data: bytes = b""):
+        self.data = data
+        self.fd = -1
+
+    def __enter__(self) -> int:
+        if hasattr(os, "memfd_create"):
+            self.fd = os.memfd_create("staggered-c3d")
+        else:
+            fh = tempfile.TemporaryFile(prefix="staggered-")  # unlinked at once on POSIX
+            self.fd = os.dup(fh.fileno())
+            fh.close()
+        view = memoryview(self.data)
+        while view:
+            view = view[os.write(self.fd, view) :]
+        os.lseek(self.fd, 0, os.SEEK_SET)
+        return self.fd
+
+    def __exit__(self, *exc) -> None:
+        os.close(self.fd)
+
+
+#: Wall-clock seconds an ezc3d read or write may take: a fixed allowance plus
+#: a time per MB of data (ezc3d reads about 15 MB/s here, so this is a wide margin).
+CHILD_SECONDS = 5.0
+CHILD_SECONDS_PER_MB = 1.0
+#: Memory an ezc3d read or write may allocate: a fixed allowance plus a
+#: multiple of the data size (ezc3d's objects take about 13x the file).
+CHILD_MEMORY = 256 << 20
+CHILD_MEMORY_PER_BYTE = 48
+
+
+def _isolated(fn, source: str, role: str, n_bytes: int):
+    """``fn()`` (a call into ezc3d on ``n_bytes`` of data) in a child
+    process, see :mod:`.isolate`.
+
+    A crash, hang or runaway allocation of ezc3d becomes one ``DataError``
+    naming ``source``; the ``role`` is ``'reader'`` or ``'writer'``.
+    """
+    import ezc3d  # noqa: F401 - imported here so that the child inherits it (~0.1 s)
+
+    memory = CHILD_MEMORY + CHILD_MEMORY_PER_BYTE * n_bytes
+    seconds = CHILD_SECONDS + CHILD_SECONDS_PER_MB * n_bytes / 1e6
+    try:
+        return run_isolated(fn, memory=memory, seconds=seconds)
+    except ChildFailed as exc:
+        log.debug("ezc3d %s: %s", role, exc.why)
+        raise DataError(f"the C3D {role} failed on this file (malformed parameters?)", source) from None
 
 
 def _point_labels(parameters) -> list[str]:
@@ -556,12 +707,35 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     points = np.asarray(motion.points, dtype=np.float64)
     labels = [str(label) for label in motion.labels]
     _check_motion(points, labels, motion.rate)
-    n_frames, n_markers = points.shape[:2]
+    if not rate_ok(float(motion.rate)):
+        raise DataError(f"cannot write a C3D at {motion.rate:g} Hz: C3D frame rates are {RATE_LIMITS}")
+    n_frames = points.shape[0]
     if n_frames > MAX_WRITE_FRAMES:
         # ezc3d caps the header and POINT:FRAMES at 65535 and writes no other
         # count: any reader, ezc3d included, would silently lose the rest
         raise DataError(f"cannot write {n_frames} frames to C3D: ezc3d writes at most {MAX_WRITE_FRAMES}")
 
+    source_name = "source C3D of the motion"
+    if motion.source:
+        _check_layout(motion.source, source_name)
+    payload = _isolated(
+        lambda: _ezc3d_bytes(motion, points, labels, source_name),
+        source_name,
+        "writer",
+        len(motion.source) + points.nbytes,
+    )
+    # what was written must read back: the same checks as the reader
+    try:
+        check_c3d(payload, "")
+    except DataError as exc:
+        raise DataError(f"cannot write this C3D: the file ezc3d made would not read back ({exc.message})") from None
+    return payload
+
+
+def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], source_name: str) -> bytes:
+    """The bytes ezc3d writes for ``motion`` (see :func:`c3d_bytes`); runs in
+    the child of :func:`_isolated`."""
+    n_frames, n_markers = points.shape[:2]
     gap = np.isnan(points).any(axis=-1)  # (T, M)
     ez_points = np.ones((4, n_markers, n_frames))
     ez_points[:3] = np.where(gap[..., None], 0.0, points).transpose(2, 1, 0)
@@ -569,8 +743,6 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     camera_masks = np.zeros((7, n_markers, n_frames), dtype=bool)
 
     if motion.source:
-        source_name = "source C3D of the motion"
-        _check_layout(motion.source, source_name)
         c3d = _load_ezc3d(motion.source, source_name)
         _carry_point_metadata(c3d, labels, n_frames, residuals, camera_masks)
         _fit_analogs(c3d, n_frames, motion.rate)
@@ -584,6 +756,7 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
 
     residuals[0][gap.T] = -1.0
     _clean_texts(c3d["parameters"])
+    _one_data_start(c3d["parameters"])
     point = c3d["parameters"]["POINT"]
     _set_point_labels(point, labels, _descriptions_by_label(point))
     _set_parameter(point, "RATE", 4, np.array([float(motion.rate)]))
@@ -592,17 +765,45 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     c3d["data"]["points"] = ez_points
     c3d["data"]["meta_points"] = {"residuals": residuals, "camera_masks": camera_masks}
 
-    with tempfile.TemporaryDirectory(prefix="staggered-") as tmpdir:
-        out = os.path.join(tmpdir, "out.c3d")
+    with _anonymous_file() as fd:
         try:
-            c3d.write(out)
+            # ezc3d appends '.c3d' to a path that does not end with it
+            c3d.write(_C3dSuffixed(fd_path(fd)))
         except Exception as exc:  # ezc3d's checks raise ValueError/TypeError/RuntimeError
             message = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"ezc3d cannot write this C3D: {message}") from None
-        payload = bytearray(Path(out).read_bytes())
+        size = os.lseek(fd, 0, os.SEEK_END)
+        payload = bytearray(os.pread(fd, size, 0))
     if events is not None:
         payload[_EVENTS_START:_EVENTS_STOP] = events
     return bytes(payload)
+
+
+class _C3dSuffixed(str):
+    """A path that ezc3d's Python writer takes as is.
+
+    ``ezc3d.c3d.write`` appends ``.c3d`` to a path whose last four
+    characters are not ``.c3d``, which would turn ``/proc/self/fd/5`` into a
+    file that does not exist; this string says it ends with ``.c3d``.
+    """
+
+    def __getitem__(self, key):
+        if key == slice(-4, None):
+            return ".c3d"
+        return str.__getitem__(self, key)
+
+
+def _one_data_start(parameters) -> None:
+    """POINT:DATA_START (and ROTATION's) as one integer, which ezc3d fills in.
+
+    ezc3d writes the block number over the first value it finds: with two
+    values, or a float, the record it writes no longer matches its size.
+    """
+    for group in ("POINT", "ROTATION"):
+        if group in parameters and "DATA_START" in parameters[group]:
+            entry = parameters[group]["DATA_START"]
+            entry["type"] = _INT
+            entry["value"] = np.array([0])
 
 
 def _clean_texts(parameters) -> None:
