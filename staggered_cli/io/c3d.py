@@ -678,8 +678,9 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
 
     With ``motion.source`` (the bytes of the file it was read from) the
     source is rewritten with new points: every parameter, analog channel and
-    header event is kept.  Markers are matched to the source by label, so
-    their residuals and camera masks carry over; new markers get residual 0.
+    header event is kept.  Markers are matched to the source by label (the
+    k-th marker of a repeated label to the k-th of the source), so their
+    residuals and camera masks carry over; new markers get residual 0.
     When the frame count or rate differs from the source, frames keep their
     time from the first frame on and so do analog samples: at the source's
     rate they are cut at the new end, or the last sample is held to fill a
@@ -869,10 +870,12 @@ def _carry_point_metadata(
     src_residuals = c3d["data"]["meta_points"]["residuals"]  # (1, Ms, Ts)
     src_masks = c3d["data"]["meta_points"]["camera_masks"]  # (7, Ms, Ts)
     src_labels = _point_labels(c3d["parameters"])[: src_residuals.shape[1]]
-    index = {}
+    # the k-th marker of a label takes the k-th source marker of that label:
+    # C3D labels may repeat, and each marker keeps its own residuals
+    index: dict[str, list[int]] = {}
     for i, label in enumerate(src_labels):
-        index.setdefault(label, i)
-    columns = np.array([index.get(label, -1) for label in labels], dtype=int)
+        index.setdefault(label, []).append(i)
+    columns = np.array([index[label].pop(0) if index.get(label) else -1 for label in labels], dtype=int)
     have = np.flatnonzero(columns >= 0)
     overlap = min(n_frames, src_residuals.shape[2])
     if have.size == 0 or overlap == 0:

@@ -261,7 +261,7 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
         for d, name in enumerate(chain):
             if name not in names:
                 raise UsageError(f"unknown joint or marker {name!r} in --chain")
-            depth_of[names.index(name)] = d
+            depth_of[doc.source.index(name) if doc.kind == "c3d" else names.index(name)] = d
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
         raise UsageError("succession needs --joint (or --chain for C3D documents)")
