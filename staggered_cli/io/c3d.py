@@ -115,7 +115,7 @@ def read_c3d(
         raw = bytes(data)
 
     layout = _check_layout(raw, source_name)
-    motion = _isolated(lambda: _markers(raw, layout, source_name), source_name, "reader", len(raw))
+    motion = _isolated(lambda: _markers(raw, layout, source_name), "reader failed on this file", source_name, len(raw))
     return replace(motion, source=raw)
 
 
@@ -375,6 +375,10 @@ _TWO_WORD_PARAMETERS = {("TRIAL", "ACTUAL_START_FIELD"), ("TRIAL", "ACTUAL_END_F
 
 
 _PARAMETER_TYPES = {-1: 1, 1: 1, 2: 2, 4: 4}  # C3D type code -> bytes per value
+#: The C3D User Guide: a parameter has at most 7 dimensions.
+_MAX_DIMENSIONS = 7
+#: Most entries of an empty array (a zero dimension) ezc3d is given.
+_MAX_EMPTY_ENTRIES = 1 << 16
 _CHAR, _BYTE, _INT, _FLOAT = -1, 1, 2, 4
 _TYPE_NAMES = {_CHAR: "char", _BYTE: "byte", _INT: "int", _FLOAT: "float"}
 _INTEGER = (_INT, _BYTE)
@@ -508,10 +512,15 @@ def _read_sizing_parameters(
             ptype, ndims = struct.unpack_from("b", raw, body)[0], raw[body + 1]
             if ptype not in _PARAMETER_TYPES:
                 raise bad(f"has unknown type {ptype}")
-            if ndims >= 128 or (ptype == -1 and ndims == 0):
-                raise bad(f"has {ndims} dimensions")
+            if ndims > _MAX_DIMENSIONS or (ptype == -1 and ndims == 0):
+                raise bad(f"has {ndims} dimensions (C3D allows 1 to {_MAX_DIMENSIONS}, 0 for a number)")
             first_value = body + 2 + ndims
-            count = math.prod(raw[body + 2 : first_value])  # Python ints: 127 dims of 255 cannot overflow
+            dims = raw[body + 2 : first_value]
+            count = math.prod(dims)  # Python ints: no overflow
+            if count == 0 and math.prod(d for d in dims if d) > _MAX_EMPTY_ENTRIES:
+                # ezc3d loops over the dimensions in turn: an empty array of
+                # 255 x 255 x ... x 0 entries still costs it forever
+                raise bad(f"is an empty array of {'x'.join(map(str, dims))} entries")
             values_end = first_value + count * _PARAMETER_TYPES[ptype]
             if (
                 first_value > record_end
@@ -567,8 +576,16 @@ def _load_ezc3d(raw: bytes, source: str):
         try:
             return ezc3d.c3d(fd_path(fd))
         except Exception as exc:  # ezc3d raises OSError/RuntimeError/ValueError from C++
+            _raise_out_of_memory(exc)
             message = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"ezc3d cannot read this C3D: {message}", source) from None
+
+
+def _raise_out_of_memory(exc: Exception) -> None:
+    """Re-raise ezc3d's ``std::bad_alloc`` (a RuntimeError) as the MemoryError it is:
+    the child's memory limit was hit, which :func:`_isolated` reports as such."""
+    if isinstance(exc, MemoryError) or "bad_alloc" in str(exc):
+        raise MemoryError(str(exc)) from None
 
 
 class _anonymous_file:
@@ -597,20 +614,21 @@ class _anonymous_file:
 
 #: Wall-clock seconds an ezc3d read or write may take: a fixed allowance plus
 #: a time per MB of data (ezc3d reads about 15 MB/s here, so this is a wide margin).
-CHILD_SECONDS = 5.0
-CHILD_SECONDS_PER_MB = 1.0
+CHILD_SECONDS = 3.0
+CHILD_SECONDS_PER_MB = 0.5
 #: Memory an ezc3d read or write may allocate: a fixed allowance plus a
 #: multiple of the data size (ezc3d's objects take about 13x the file).
 CHILD_MEMORY = 256 << 20
 CHILD_MEMORY_PER_BYTE = 48
 
 
-def _isolated(fn, source: str, role: str, n_bytes: int):
+def _isolated(fn, what: str, source: str | None, n_bytes: int):
     """``fn()`` (a call into ezc3d on ``n_bytes`` of data) in a child
     process, see :mod:`.isolate`.
 
     A crash, hang or runaway allocation of ezc3d becomes one ``DataError``
-    naming ``source``; the ``role`` is ``'reader'`` or ``'writer'``.
+    naming ``source`` (None: the command's input): "the C3D ``what``
+    failed ...".
     """
     import ezc3d  # noqa: F401 - imported here so that the child inherits it (~0.1 s)
 
@@ -619,8 +637,8 @@ def _isolated(fn, source: str, role: str, n_bytes: int):
     try:
         return run_isolated(fn, memory=memory, seconds=seconds)
     except ChildFailed as exc:
-        log.debug("ezc3d %s: %s", role, exc.why)
-        raise DataError(f"the C3D {role} failed on this file (malformed parameters?)", source) from None
+        log.debug("ezc3d in a child process: %s", exc.why)
+        raise DataError(f"the C3D {what} (malformed parameters?)", source) from None
 
 
 def _point_labels(parameters) -> list[str]:
@@ -721,8 +739,8 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
         _check_layout(motion.source, source_name)
     payload = _isolated(
         lambda: _ezc3d_bytes(motion, points, labels, source_name),
-        source_name,
-        "writer",
+        "writer failed on the motion's source C3D" if motion.source else "writer failed",
+        None,  # the command's input: the document that holds the source
         len(motion.source) + points.nbytes,
     )
     # what was written must read back: the same checks as the reader
@@ -771,6 +789,7 @@ def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], so
             # ezc3d appends '.c3d' to a path that does not end with it
             c3d.write(_C3dSuffixed(fd_path(fd)))
         except Exception as exc:  # ezc3d's checks raise ValueError/TypeError/RuntimeError
+            _raise_out_of_memory(exc)
             message = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"ezc3d cannot write this C3D: {message}") from None
         size = os.lseek(fd, 0, os.SEEK_END)

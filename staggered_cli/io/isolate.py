@@ -19,6 +19,7 @@ the command's data on stdout), and it dies with its parent (Linux
 
 from __future__ import annotations
 
+import faulthandler
 import functools
 import math
 import os
@@ -138,6 +139,7 @@ def _child(fn, r: int, w: int, parent: int, limit: int | None, seconds: float) -
         os.close(r)
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGPIPE):
             signal.signal(sig, signal.SIG_DFL)
+        faulthandler.disable()  # its dump of a crash would go to the parent's stderr
         _die_with_parent(parent)
         null = os.open(os.devnull, os.O_RDWR)
         for fd in (0, 1, 2):
