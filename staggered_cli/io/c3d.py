@@ -218,7 +218,7 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
     h_data_start, h_analog_per_frame = word(8), word(9)
     h_rate = _decode_float(raw[20:24], processor)
 
-    params, n_values, groups = _read_sizing_parameters(raw, parameter_offset, processor, source)
+    params, n_values, groups, types = _read_sizing_parameters(raw, parameter_offset, processor, source)
 
     def param(key: str, default: float) -> float:
         value = params.get(key)
@@ -257,6 +257,9 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
         )
     if n_frames > MAX_FRAMES:
         raise DataError(f"corrupt C3D: claims {n_frames} frames (more than {MAX_FRAMES})", source)
+    if types.get("POINT:FRAMES") == _FLOAT:
+        # refused only now, so that an absurd count is named as such first
+        raise DataError("unsupported C3D: parameter POINT:FRAMES is of type float, readers expect int or byte", source)
 
     point_rate = param("POINT:RATE", h_rate)
     if n_points == 0:
@@ -448,7 +451,7 @@ def _check_read_as(group: str, name: str, ptype: int, count: int, source: str) -
 
 def _read_sizing_parameters(
     raw: bytes, offset: int, processor: int, source: str
-) -> tuple[dict[str, float], dict[str, int], set[str]]:
+) -> tuple[dict[str, float], dict[str, int], set[str], dict[str, int]]:
     """Walk the parameter section, check its structure, and pick what sizes the data.
 
     The walk follows the C3D User Guide ("The parameter section"): each
@@ -467,6 +470,8 @@ def _read_sizing_parameters(
         ``{'GROUP:NAME': number of values}`` for every parameter.
     groups : set of str
         The group names.
+    types : dict
+        ``{'GROUP:NAME': C3D type code}`` for every parameter.
 
     Raises
     ------
@@ -536,6 +541,7 @@ def _read_sizing_parameters(
 
     values: dict[str, float] = {}
     counts: dict[str, int] = {}
+    types: dict[str, int] = {}
     for gid, name, ptype, count, first in records:
         if gid not in group_names:
             raise DataError(
@@ -543,6 +549,7 @@ def _read_sizing_parameters(
             )
         key = (group_names[gid], name)
         counts[f"{key[0]}:{key[1]}"] = count
+        types[f"{key[0]}:{key[1]}"] = ptype
         _check_read_as(key[0], key[1], ptype, count, source)
         if key not in _SIZING_PARAMETERS or count == 0:
             continue
@@ -560,7 +567,7 @@ def _read_sizing_parameters(
         else:
             continue
         values[f"{key[0]}:{key[1]}"] = number
-    return values, counts, set(group_names.values())
+    return values, counts, set(group_names.values()), types
 
 
 def _load_ezc3d(raw: bytes, source: str):

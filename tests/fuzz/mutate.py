@@ -357,10 +357,15 @@ def _c3d_parameters(raw: bytes, offset: int) -> dict[str, tuple[int, int, int, i
 
 @cache
 def c3d_base(path: Path) -> C3dBase:
+    return c3d_base_of(Path(path).read_bytes(), str(path))
+
+
+@cache
+def c3d_base_of(raw: bytes, name: str = "c3d") -> C3dBase:
+    """The parsed view of the C3D bytes ``raw``."""
     from staggered_cli.io.c3d import _check_layout
 
-    raw = Path(path).read_bytes()
-    layout = _check_layout(raw, str(path))
+    layout = _check_layout(raw, name)
     assert layout.processor == 84, "the mutations assume Intel C3D files"
     stride = 4 * layout.n_points + layout.n_analogs * layout.analog_per_frame
     end = layout.data_offset + layout.n_frames * stride * layout.value_bytes
@@ -1124,6 +1129,19 @@ def doc_garbage(b: DocBase, rng: random.Random, fmt: str) -> Case:
     return Case("garbage", head + junk, True)
 
 
+def doc_source_c3d(b: DocBase, rng: random.Random, fmt: str) -> Case:
+    """The embedded source C3D of a C3D document given a parameter-level
+    mutation (type, count, value, name length): what bake rewrites."""
+    manifest, arrays = _parts(b)
+    if manifest["source"]["kind"] != "c3d" or not arrays["source.c3d"].size:
+        return doc_flip(b, rng, fmt)
+    base = c3d_base_of(arrays["source.c3d"].tobytes(), "source.c3d")
+    mutation = rng.choice([c3d_parameter_type, c3d_parameter_count, c3d_parameter_value, c3d_name_length])
+    case = mutation(base, rng)
+    arrays["source.c3d"] = np.frombuffer(case.data, np.uint8)
+    return Case(f"source-c3d:{case.kind}", _encode(manifest, arrays, fmt), case.strict)
+
+
 DOC_MUTATIONS = (
     doc_missing_array,
     doc_wrong_shape,
@@ -1137,4 +1155,5 @@ DOC_MUTATIONS = (
     doc_truncate,
     doc_flip,
     doc_garbage,
+    doc_source_c3d,
 )
