@@ -115,8 +115,19 @@ def read_c3d(
         raw = bytes(data)
 
     layout = _check_layout(raw, source_name)
-    motion = _isolated(lambda: _markers(raw, layout, source_name), "reader failed on this file", source_name, len(raw))
-    return replace(motion, source=raw)
+    motion = _isolated(
+        lambda: _compact(_markers(raw, layout, source_name)), "reader failed on this file", source_name, len(raw)
+    )
+    return replace(motion, points=np.asarray(motion.points, dtype=np.float64), source=raw)
+
+
+def _compact(motion: MarkerMotion) -> MarkerMotion:
+    """``motion`` with float32 points when that loses nothing (a float C3D
+    holds 4-byte floats): half the bytes to send back from the child."""
+    small = motion.points.astype(np.float32)
+    if np.array_equal(small, motion.points, equal_nan=True):
+        return replace(motion, points=small)
+    return motion
 
 
 def _markers(raw: bytes, layout: _Layout, source_name: str) -> MarkerMotion:
@@ -750,6 +761,7 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
         None,  # the command's input: the document that holds the source
         len(motion.source) + points.nbytes,
     )
+    payload = bytes(payload)
     # what was written must read back: the same checks as the reader
     try:
         check_c3d(payload, "")
@@ -758,7 +770,7 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     return payload
 
 
-def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], source_name: str) -> bytes:
+def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], source_name: str) -> bytearray:
     """The bytes ezc3d writes for ``motion`` (see :func:`c3d_bytes`); runs in
     the child of :func:`_isolated`."""
     n_frames, n_markers = points.shape[:2]
@@ -803,7 +815,7 @@ def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], so
         payload = bytearray(os.pread(fd, size, 0))
     if events is not None:
         payload[_EVENTS_START:_EVENTS_STOP] = events
-    return bytes(payload)
+    return payload  # a bytearray leaves the child without a copy (pickle buffers)
 
 
 class _C3dSuffixed(str):

@@ -26,6 +26,7 @@ import os
 import pickle
 import selectors
 import signal
+import struct
 import time
 from collections.abc import Callable
 from typing import TypeVar
@@ -85,8 +86,8 @@ def run_isolated(fn: Callable[[], T], *, memory: int, seconds: float) -> T:
     os.close(w)
     reaped = False
     try:
-        payload, timed_out = _collect(r, time.monotonic() + seconds)
-        if timed_out:
+        frames = _collect(r, time.monotonic() + seconds)
+        if frames is None:
             raise ChildFailed(f"no result after {seconds:g} s (killed)")
         _, status = os.waitpid(pid, 0)
         reaped = True
@@ -97,11 +98,11 @@ def run_isolated(fn: Callable[[], T], *, memory: int, seconds: float) -> T:
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)
         raise ChildFailed(f"killed by {_signal_name(sig)}")
-    if not payload:
+    if not frames:
         raise ChildFailed(f"exited with status {os.WEXITSTATUS(status)} and no result")
     try:
-        kind, value = pickle.loads(payload)
-    except Exception:  # a truncated payload: the child died while writing it
+        kind, value = pickle.loads(frames[0], buffers=frames[1:])
+    except Exception:  # cannot happen unless the child was killed while writing
         raise ChildFailed("sent an incomplete result") from None
     if kind == "raise":
         if isinstance(value, MemoryError):
@@ -116,21 +117,59 @@ def fd_path(fd: int) -> str:
     return proc if os.path.exists(proc) else f"/dev/fd/{fd}"
 
 
-def _collect(r: int, deadline: float) -> tuple[bytes, bool]:
-    """Everything the child writes to ``r`` until it closes it, or the deadline."""
-    chunks: list[bytes] = []
+def _collect(r: int, deadline: float) -> list[bytearray] | None:
+    """The frames the child sends on ``r`` (see :func:`_send`): ``[]`` when it
+    sent nothing or not all, None at the deadline.  Each frame is read
+    straight into its own buffer: a result's arrays are not copied again."""
     with selectors.DefaultSelector() as sel:
         sel.register(r, selectors.EVENT_READ)
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return b"", True
-            if not sel.select(left):
-                continue
-            chunk = os.read(r, _CHUNK)
-            if not chunk:
-                return b"".join(chunks), False
-            chunks.append(chunk)
+
+        def read(n: int) -> bytearray | None:
+            buf = bytearray(n)
+            view = memoryview(buf)
+            got = 0
+            while got < n:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError
+                if not sel.select(left):
+                    continue
+                k = os.readv(r, [view[got : got + _CHUNK]])
+                if k == 0:
+                    return None
+                got += k
+            return buf
+
+        try:
+            head = read(16)
+            if head is None:
+                return []
+            size, count = struct.unpack("<QQ", head)
+            frames = [read(size)]
+            for _ in range(count):
+                length = read(8)
+                frames.append(read(struct.unpack("<Q", length)[0]) if length is not None else None)
+        except TimeoutError:
+            return None
+    return [] if any(f is None for f in frames) else frames  # type: ignore[misc]
+
+
+def _send(w: int, out) -> None:  # pragma: no cover - runs in the child
+    """Write ``out`` pickled to ``w``: a frame with the pickle, then one per
+    out-of-band buffer (numpy arrays, bytearrays), each length-prefixed."""
+    buffers: list[pickle.PickleBuffer] = []
+    head = pickle.dumps(out, protocol=5, buffer_callback=buffers.append)
+    views = [b.raw() for b in buffers]
+    _write(w, struct.pack("<QQ", len(head), len(views)) + head)
+    for view in views:
+        _write(w, struct.pack("<Q", view.nbytes))
+        _write(w, view)
+
+
+def _write(w: int, data) -> None:  # pragma: no cover - runs in the child
+    view = memoryview(data).cast("B")
+    while view:
+        view = view[os.write(w, view) :]
 
 
 def _child(fn, r: int, w: int, parent: int, limit: int | None, seconds: float) -> None:  # pragma: no cover
@@ -159,12 +198,9 @@ def _child(fn, r: int, w: int, parent: int, limit: int | None, seconds: float) -
         except BaseException as exc:  # everything goes back to the parent
             out = ("raise", exc)
         try:
-            data = pickle.dumps(out, protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception as exc:  # an unpicklable result or exception
-            data = pickle.dumps(("raise", RuntimeError(f"{type(exc).__name__}: {exc}")))
-        view = memoryview(data)
-        while view:
-            view = view[os.write(w, view) :]
+            _send(w, out)
+        except (pickle.PicklingError, TypeError, AttributeError) as exc:  # an unpicklable result or exception
+            _send(w, ("raise", RuntimeError(f"{type(exc).__name__}: {exc}")))
     finally:
         os._exit(0)
 
