@@ -42,6 +42,7 @@ Detection
 
 from __future__ import annotations
 
+import logging
 import re
 
 import numpy as np
@@ -50,6 +51,8 @@ from .document import Constraint
 from .errors import UsageError
 from .motion import BvhMotion, MarkerMotion
 from .skeleton import body_joints
+
+log = logging.getLogger(__name__)
 
 #: Default minimum contact duration, seconds (the paper's 0.25 s misses running stance).
 DEFAULT_MIN_CONTACT = 0.1
@@ -91,12 +94,8 @@ def effector_positions(
     labels = motion.labels
     if names is None:
         idx = np.arange(len(labels))
-    else:
-        missing = [n for n in names if n not in labels]
-        if missing:
-            shown = ", ".join(labels[:8]) + (", ..." if len(labels) > 8 else "")
-            raise UsageError(f"unknown marker {missing[0]!r} (markers: {shown})")
-        idx = np.array([labels.index(n) for n in names], dtype=int)
+    else:  # UsageError for an unknown or ambiguous label
+        idx = np.array([motion.index(n) for n in names], dtype=int)
     return tuple(labels[i] for i in idx), motion.points[:, idx], float(motion.figure_height())
 
 
@@ -181,6 +180,10 @@ def contact_joints(
     else:
         up = up_direction(pos, height)
         chosen = sorted(int(j) for j in _lowest(pos, up, height))
+        shared = [all_names[j] for j in chosen if motion.labels.count(all_names[j]) > 1]
+        if shared:  # a constraint names its marker: it must name one
+            log.warning("no contact detection on marker %r: its label is shared by other markers", shared[0])
+            chosen = [j for j in chosen if all_names[j] not in shared]
     return tuple(all_names[j] for j in chosen)
 
 

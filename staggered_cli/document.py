@@ -570,7 +570,11 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                     check_c3d(raw.tobytes(), "source.c3d")
                 except DataError as exc:
                     need(False, str(exc))
-            source = MarkerMotion(labels, pts, float(c["rate"]), str(c.get("units", "")), raw.tobytes())
+            from .io.c3d import RATE_LIMITS, rate_ok
+
+            rate = float(c["rate"])
+            need(rate_ok(rate), f"the c3d rate {rate:g} Hz is outside {RATE_LIMITS}")
+            source = MarkerMotion(labels, pts, rate, str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"source description is malformed ({type(exc).__name__}: {str(exc)[:60]})") from None

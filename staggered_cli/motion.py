@@ -17,6 +17,7 @@ from functools import cached_property
 import numpy as np
 
 from . import quat
+from .errors import UsageError
 from .skeleton import (
     POSITION_CHANNELS,
     ROTATION_CHANNELS,
@@ -130,6 +131,21 @@ class MarkerMotion:
     @property
     def frame_time(self) -> float:
         return 1.0 / self.rate
+
+    def index(self, label: str) -> int:
+        """Index of the marker ``label``.
+
+        ``UsageError`` when no marker has it (listing a few), or when several
+        do: a C3D may repeat a label, and an edit of "the first one" would
+        silently leave the others alone.
+        """
+        count = self.labels.count(label)
+        if count == 1:
+            return self.labels.index(label)
+        if count > 1:
+            raise UsageError(f"marker label {label!r} is ambiguous: {count} markers share it")
+        shown = ", ".join(self.labels[:8]) + (", ..." if len(self.labels) > 8 else "")
+        raise UsageError(f"unknown marker {label!r} (markers: {shown})")
 
     def figure_height(self) -> float:
         seen = np.all(np.isfinite(self.points), axis=2)  # (T, M)

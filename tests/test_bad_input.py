@@ -123,6 +123,34 @@ def assert_valid_output(command: str, result, out: Path | None) -> None:
             assert not np.isinf(values).any()
 
 
+@pytest.fixture(scope="module")
+def worker():
+    """One forked process that runs fuzz cases for the tests of this module
+    (its assertion errors come back as they were raised): a crash of the tool
+    on a case fails that test instead of killing pytest."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+    yield pool
+    pool.shutdown(cancel_futures=True)
+
+
+def in_worker(pool, kind: str, fn, *args):
+    """``fn(*args)`` (picklable) in ``pool``'s process."""
+    from concurrent.futures import TimeoutError as FutureTimeout
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return pool.submit(fn, *args).result(timeout=60)
+    except BrokenProcessPool:
+        pytest.fail(f"{kind}: the process running the case died (a crash of the tool)")
+    except FutureTimeout:
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.kill()
+        pytest.fail(f"{kind}: the case ran for more than 60 s")
+
+
 class Tally:
     """Counts of the cases tried, by mutation and outcome, printed at the end."""
 
@@ -185,7 +213,12 @@ def run_motion_case(case: mu.Case, command: str, workdir: Path, suffix: str):
     return result
 
 
-def _motion_fuzz(bases, mutations, suffix, label):
+def motion_case_code(case: mu.Case, command: str, suffix: str) -> int:
+    with tempfile.TemporaryDirectory() as d:
+        return run_motion_case(case, command, Path(d), suffix).exit_code
+
+
+def _motion_fuzz(bases, mutations, suffix, label, pool=None):
     tally = Tally(label)
     paths = [base_path(name) for name in bases]
 
@@ -199,9 +232,11 @@ def _motion_fuzz(bases, mutations, suffix, label):
     def check(base, mutation, seed, command):
         loader = mu.bvh_base if suffix == ".bvh" else mu.c3d_base
         case = mutation(loader(base), random.Random(seed))
-        with tempfile.TemporaryDirectory() as d:
-            result = run_motion_case(case, command, Path(d), suffix)
-        tally.add(case.kind, case.strict, result.exit_code)
+        if pool is not None:  # a segfault in ezc3d fails the case, not pytest
+            code = in_worker(pool, case.kind, motion_case_code, case, command, suffix)
+        else:
+            code = motion_case_code(case, command, suffix)
+        tally.add(case.kind, case.strict, code)
 
     check()
     print(tally.report())
@@ -229,8 +264,8 @@ def test_mutated_bvh_files_are_refused_cleanly():
 
 
 @pytest.mark.timeout(150)
-def test_mutated_c3d_files_are_refused_cleanly():
-    tally = _motion_fuzz(C3D_BASES, mu.C3D_MUTATIONS, ".c3d", "C3D")
+def test_mutated_c3d_files_are_refused_cleanly(worker):
+    tally = _motion_fuzz(C3D_BASES, mu.C3D_MUTATIONS, ".c3d", "C3D", worker)
     assert tally.total >= min(500, EXAMPLES)
     assert set(tally.kinds) >= {
         "truncate",
@@ -243,6 +278,10 @@ def test_mutated_c3d_files_are_refused_cleanly():
         "missing-marker",
         "values",
         "garbage",
+        "param-type",
+        "param-count",
+        "param-value",
+        "name-length",
     }
 
 
@@ -299,7 +338,7 @@ def doc_command(command: str, doc_kind: str, manifest: dict, inp: Path, out: Pat
 
 
 @pytest.mark.timeout(150)
-def test_mutated_documents_are_refused_cleanly(documents):
+def test_mutated_documents_are_refused_cleanly(documents, worker):
     tally = Tally("document")
     bases = {name: mu.doc_base(path.read_bytes()) for name, path in documents.items()}
 
@@ -314,28 +353,11 @@ def test_mutated_documents_are_refused_cleanly(documents):
     def check(base, mutation, seed, fmt, command):
         b = bases[base]
         case = mutation(b, random.Random(seed), fmt)
-        with tempfile.TemporaryDirectory() as d:
-            workdir = Path(d)
-            inp = workdir / "bad.stag"
-            inp.write_bytes(case.data)
-            out = workdir / "out"
-            args, use_stdin, written = doc_command(command, base.rsplit(".", 1)[1], b.manifest, inp, out)
-            result, elapsed = invoke(args, case.data if use_stdin else None)
-            assert_clean(result, elapsed)
-            if result.exit_code == 0:
-                assert not case.strict, f"{case.kind}: a bad document was accepted"
-                assert_valid_output(command, result, written)
-            else:
-                # an edit may be refused as usage (a knot would cross): exit 2
-                assert_refused(
-                    result,
-                    "<stdin>" if use_stdin else str(inp),
-                    workdir,
-                    {inp.name},
-                    to_stdout=not command.startswith("info") and command != "constraints",
-                    code=(1,) if case.strict else (1, 2),
-                )
-        tally.add(case.kind, case.strict, result.exit_code)
+        if base.endswith(".c3d"):  # its source C3D goes to ezc3d: a crash must fail the case, not pytest
+            code = in_worker(worker, case.kind, run_document_case, case, b.manifest, base, command)
+        else:
+            code = run_document_case(case, b.manifest, base, command)
+        tally.add(case.kind, case.strict, code)
 
     check()
     print(tally.report())
@@ -353,7 +375,34 @@ def test_mutated_documents_are_refused_cleanly(documents):
         "truncate",
         "flip",
         "garbage",
+        "source-c3d",
     }
+
+
+def run_document_case(case: mu.Case, manifest: dict, base: str, command: str) -> int:
+    """Run one mutated document through ``command``; check the outcome; the exit code."""
+    with tempfile.TemporaryDirectory() as d:
+        workdir = Path(d)
+        inp = workdir / "bad.stag"
+        inp.write_bytes(case.data)
+        out = workdir / "out"
+        args, use_stdin, written = doc_command(command, base.rsplit(".", 1)[1], manifest, inp, out)
+        result, elapsed = invoke(args, case.data if use_stdin else None)
+        assert_clean(result, elapsed)
+        if result.exit_code == 0:
+            assert not case.strict, f"{case.kind}: a bad document was accepted"
+            assert_valid_output(command, result, written)
+        else:
+            # an edit may be refused as usage (a knot would cross): exit 2
+            assert_refused(
+                result,
+                "<stdin>" if use_stdin else str(inp),
+                workdir,
+                {inp.name},
+                to_stdout=not command.startswith("info") and command != "constraints",
+                code=(1,) if case.strict else (1, 2),
+            )
+        return result.exit_code
 
 
 def test_document_validation_names_the_problem(documents):

@@ -40,4 +40,9 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
     if blend < 0:
         raise click.BadParameter(f"must not be negative, got {ik_blend}", param_hint="--ik-blend")
     doc = read_document(input_path)
+    if rate is not None and doc.kind == "c3d":
+        from ..io.c3d import RATE_LIMITS, rate_ok
+
+        if not rate_ok(rate):  # the limits of the C3D reader: never write what it refuses
+            raise click.BadParameter(f"a C3D is written at {RATE_LIMITS}, got {fps}", param_hint="--fps")
     write_motion(op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend), output, force)

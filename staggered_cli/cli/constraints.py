@@ -41,9 +41,8 @@ def _check_span(doc, joint: str, start: float, end: float) -> tuple[float, float
     src = doc.source
     if isinstance(src, BvhMotion):
         two_bone_chain(src.skeleton, joint)  # unknown joint or no chain: UsageError
-    elif joint not in src.labels:
-        shown = ", ".join(src.labels[:8]) + (", ..." if len(src.labels) > 8 else "")
-        raise UsageError(f"unknown marker {joint!r} (markers: {shown})")
+    else:
+        src.index(joint)  # unknown or ambiguous label: UsageError
     half = 0.5 * doc.frame_time  # times as the listing prints them (4 decimals) must be accepted
     if start < -half or end > doc.duration + half:
         raise UsageError(f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.duration:.4f} s)")

@@ -25,20 +25,24 @@ when ``POINT:SCALE < 0``, a 2-byte integer otherwise.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
 import struct
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DataError
 from ..motion import MarkerMotion
+from .isolate import ChildFailed, fd_path, run_isolated
 
-__all__ = ["read_c3d", "write_c3d", "c3d_bytes", "check_c3d"]
+log = logging.getLogger(__name__)
+
+__all__ = ["read_c3d", "write_c3d", "c3d_bytes", "check_c3d", "rate_ok", "MIN_RATE", "MAX_RATE"]
 
 _BLOCK = 512
 _KEY_BYTE = 0x50  # second byte of every C3D file
@@ -51,6 +55,10 @@ MAX_FRAMES = 10**8
 MAX_MAGNITUDE = 1e12
 #: Most frames ezc3d 1.7.2 can write so that they read back (16-bit counts).
 MAX_WRITE_FRAMES = 65535
+#: Marker frame rates (POINT:RATE, Hz) read and written: anything outside is
+#: not a capture (and 1e-308 Hz is 0 once stored as a 4-byte float).
+MIN_RATE = 1.0
+MAX_RATE = 10_000.0
 #: C3D stores the dimensions of a parameter in bytes: at most 255 labels per
 #: LABELS parameter, the rest continue in LABELS2, LABELS3, ...
 _LABELS_PER_PARAMETER = 255
@@ -107,6 +115,24 @@ def read_c3d(
         raw = bytes(data)
 
     layout = _check_layout(raw, source_name)
+    motion = _isolated(
+        lambda: _compact(_markers(raw, layout, source_name)), "reader failed on this file", source_name, len(raw)
+    )
+    return replace(motion, points=np.asarray(motion.points, dtype=np.float64), source=raw)
+
+
+def _compact(motion: MarkerMotion) -> MarkerMotion:
+    """``motion`` with float32 points when that loses nothing (a float C3D
+    holds 4-byte floats): half the bytes to send back from the child."""
+    small = motion.points.astype(np.float32)
+    if np.array_equal(small, motion.points, equal_nan=True):
+        return replace(motion, points=small)
+    return motion
+
+
+def _markers(raw: bytes, layout: _Layout, source_name: str) -> MarkerMotion:
+    """The markers of ``raw`` as ezc3d reads them (``source`` left empty);
+    runs in the child of :func:`_isolated`."""
     c3d = _load_ezc3d(raw, source_name)
 
     parameters = c3d["parameters"]
@@ -148,7 +174,6 @@ def read_c3d(
         points=points,
         rate=float(rate),
         units=_text(str(units[0])).strip(),
-        source=raw,
     )
 
 
@@ -204,7 +229,7 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
     h_data_start, h_analog_per_frame = word(8), word(9)
     h_rate = _decode_float(raw[20:24], processor)
 
-    params, n_values, groups = _read_sizing_parameters(raw, parameter_offset, processor, source)
+    params, n_values, groups, types = _read_sizing_parameters(raw, parameter_offset, processor, source)
 
     def param(key: str, default: float) -> float:
         value = params.get(key)
@@ -243,8 +268,21 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
         )
     if n_frames > MAX_FRAMES:
         raise DataError(f"corrupt C3D: claims {n_frames} frames (more than {MAX_FRAMES})", source)
+    if types.get("POINT:FRAMES") == _FLOAT:
+        # refused only now, so that an absurd count is named as such first
+        raise DataError("unsupported C3D: parameter POINT:FRAMES is of type float, readers expect int or byte", source)
 
     point_rate = param("POINT:RATE", h_rate)
+    if n_points == 0:
+        raise DataError(
+            "no markers in this C3D (POINT:USED is 0" + (f", {n_analogs} analog channels only)" if n_analogs else ")"),
+            source,
+        )
+    if n_frames == 0:
+        raise DataError("no frames in this C3D", source)
+    rate = point_rate or h_rate  # ezc3d: a zero POINT:RATE leaves the header's
+    if not rate_ok(rate):
+        raise DataError(f"frame rate {rate:g} Hz (POINT:RATE) is outside {RATE_LIMITS}", source)
     analog_rate = param("ANALOG:RATE", 0.0)
     analog_per_frame = h_analog_per_frame
     if np.isfinite(point_rate) and np.isfinite(analog_rate) and int(point_rate) != 0:
@@ -296,6 +334,15 @@ def _check_layout(raw: bytes, source: str) -> _Layout:
     return _Layout(processor, n_points, n_analogs, analog_per_frame, n_frames, value_bytes, data_offset)
 
 
+def rate_ok(rate: float) -> bool:
+    """Whether ``rate`` Hz is a marker rate C3D files are read and written at
+    (``MIN_RATE`` to ``MAX_RATE``; False for NaN)."""
+    return bool(MIN_RATE <= rate <= MAX_RATE)
+
+
+RATE_LIMITS = f"{MIN_RATE:g} to {MAX_RATE:g} Hz"
+
+
 def _long_frame_count(params: dict[str, float]) -> int:
     """Frame count from POINT:LONG_FRAMES or the TRIAL fields (0 if absent)."""
     count = 0
@@ -342,11 +389,80 @@ _TWO_WORD_PARAMETERS = {("TRIAL", "ACTUAL_START_FIELD"), ("TRIAL", "ACTUAL_END_F
 
 
 _PARAMETER_TYPES = {-1: 1, 1: 1, 2: 2, 4: 4}  # C3D type code -> bytes per value
+#: The C3D User Guide: a parameter has at most 7 dimensions.
+_MAX_DIMENSIONS = 7
+#: Most entries of an empty array (a zero dimension) ezc3d is given.
+_MAX_EMPTY_ENTRIES = 1 << 16
+_CHAR, _BYTE, _INT, _FLOAT = -1, 1, 2, 4
+_TYPE_NAMES = {_CHAR: "char", _BYTE: "byte", _INT: "int", _FLOAT: "float"}
+_INTEGER = (_INT, _BYTE)
+#: The parameters ezc3d 1.7.2 (and this module) read: the C3D types read
+#: (ezc3d's valuesAsInt() takes int and byte, valuesAsDouble() float,
+#: valuesAsString() char; another type throws, or is misread by the code
+#: here) and the number of values indexed without a bounds check
+#: (``valuesAsInt()[0]`` of an empty array is a segfault).
+_READ_AS: dict[tuple[str, str], tuple[tuple[int, ...], int]] = {
+    ("POINT", "USED"): (_INTEGER, 1),
+    ("POINT", "FRAMES"): ((_INT, _BYTE, _FLOAT), 1),  # float: the c3d.org way past 65535 (ezc3d refuses it)
+    ("POINT", "SCALE"): ((_FLOAT,), 1),
+    ("POINT", "RATE"): ((_FLOAT,), 1),
+    ("POINT", "DATA_START"): (_INTEGER, 1),
+    ("POINT", "LONG_FRAMES"): ((_FLOAT, _INT, _BYTE), 1),
+    ("ANALOG", "USED"): (_INTEGER, 1),
+    ("ANALOG", "RATE"): ((_FLOAT,), 1),
+    ("ANALOG", "GEN_SCALE"): ((_FLOAT,), 1),
+    ("ANALOG", "BITS"): (_INTEGER, 0),
+    ("ANALOG", "FORMAT"): ((_CHAR,), 0),
+    ("TRIAL", "ACTUAL_START_FIELD"): (_INTEGER, 2),
+    ("TRIAL", "ACTUAL_END_FIELD"): (_INTEGER, 2),
+    ("ROTATION", "USED"): (_INTEGER, 1),
+    ("ROTATION", "DATA_START"): (_INTEGER, 1),
+    ("ROTATION", "RATIO"): (_INTEGER, 1),
+    ("ROTATION", "RATE"): ((_FLOAT,), 1),
+    ("MANUFACTURER", "COMPANY"): ((_CHAR,), 0),
+}
+#: Parameters continued by NAME2, NAME3, ... (ezc3d reads them all, in order).
+_READ_AS_NUMBERED: dict[tuple[str, str], tuple[int, ...]] = {
+    ("POINT", "LABELS"): (_CHAR,),
+    ("POINT", "DESCRIPTIONS"): (_CHAR,),
+    ("POINT", "UNITS"): (_CHAR,),
+    ("POINT", "SCALE"): (_FLOAT,),
+    ("ANALOG", "LABELS"): (_CHAR,),
+    ("ANALOG", "DESCRIPTIONS"): (_CHAR,),
+    ("ANALOG", "UNITS"): (_CHAR,),
+    ("ANALOG", "SCALE"): (_FLOAT,),
+    ("ANALOG", "OFFSET"): _INTEGER,
+}
+_NUMBERED = re.compile(r"(.*?)([2-9]|[1-9][0-9]+)")
+
+
+def _check_read_as(group: str, name: str, ptype: int, count: int, source: str) -> None:
+    """Refuse a parameter that ezc3d reads as another type, or with fewer values than it indexes."""
+    key = (group, name)
+    rule = _READ_AS.get(key)
+    if rule is None:
+        m = _NUMBERED.fullmatch(name)
+        base = (group, m.group(1)) if m else None
+        types = _READ_AS_NUMBERED.get(key) or (_READ_AS_NUMBERED.get(base) if base else None)
+        if types is None:
+            return
+        rule = (types, 0)
+    types, least = rule
+    shown = f"{group}:{name}"
+    if ptype not in types:
+        expected = " or ".join(_TYPE_NAMES[t] for t in types)
+        raise DataError(
+            f"unsupported C3D: parameter {shown} is of type {_TYPE_NAMES.get(ptype, ptype)}, readers expect {expected}",
+            source,
+        )
+    if count < least:
+        held = "no value" if count == 0 else f"{count} value"
+        raise DataError(f"corrupt C3D: parameter {shown} holds {held} (at least {least} expected)", source)
 
 
 def _read_sizing_parameters(
     raw: bytes, offset: int, processor: int, source: str
-) -> tuple[dict[str, float], dict[str, int], set[str]]:
+) -> tuple[dict[str, float], dict[str, int], set[str], dict[str, int]]:
     """Walk the parameter section, check its structure, and pick what sizes the data.
 
     The walk follows the C3D User Guide ("The parameter section"): each
@@ -365,6 +481,8 @@ def _read_sizing_parameters(
         ``{'GROUP:NAME': number of values}`` for every parameter.
     groups : set of str
         The group names.
+    types : dict
+        ``{'GROUP:NAME': C3D type code}`` for every parameter.
 
     Raises
     ------
@@ -410,10 +528,15 @@ def _read_sizing_parameters(
             ptype, ndims = struct.unpack_from("b", raw, body)[0], raw[body + 1]
             if ptype not in _PARAMETER_TYPES:
                 raise bad(f"has unknown type {ptype}")
-            if ndims >= 128 or (ptype == -1 and ndims == 0):
-                raise bad(f"has {ndims} dimensions")
+            if ndims > _MAX_DIMENSIONS or (ptype == -1 and ndims == 0):
+                raise bad(f"has {ndims} dimensions (C3D allows 1 to {_MAX_DIMENSIONS}, 0 for a number)")
             first_value = body + 2 + ndims
-            count = math.prod(raw[body + 2 : first_value])  # Python ints: 127 dims of 255 cannot overflow
+            dims = raw[body + 2 : first_value]
+            count = math.prod(dims)  # Python ints: no overflow
+            if count == 0 and math.prod(d for d in dims if d) > _MAX_EMPTY_ENTRIES:
+                # ezc3d loops over the dimensions in turn: an empty array of
+                # 255 x 255 x ... x 0 entries still costs it forever
+                raise bad(f"is an empty array of {'x'.join(map(str, dims))} entries")
             values_end = first_value + count * _PARAMETER_TYPES[ptype]
             if (
                 first_value > record_end
@@ -429,6 +552,7 @@ def _read_sizing_parameters(
 
     values: dict[str, float] = {}
     counts: dict[str, int] = {}
+    types: dict[str, int] = {}
     for gid, name, ptype, count, first in records:
         if gid not in group_names:
             raise DataError(
@@ -436,6 +560,8 @@ def _read_sizing_parameters(
             )
         key = (group_names[gid], name)
         counts[f"{key[0]}:{key[1]}"] = count
+        types[f"{key[0]}:{key[1]}"] = ptype
+        _check_read_as(key[0], key[1], ptype, count, source)
         if key not in _SIZING_PARAMETERS or count == 0:
             continue
         if key in _TWO_WORD_PARAMETERS:
@@ -452,24 +578,85 @@ def _read_sizing_parameters(
         else:
             continue
         values[f"{key[0]}:{key[1]}"] = number
-    return values, counts, set(group_names.values())
+    return values, counts, set(group_names.values()), types
 
 
 def _load_ezc3d(raw: bytes, source: str):
-    """ezc3d's c3d object of ``raw`` (ezc3d only reads paths: use a temp file)."""
-    import ezc3d  # deferred: importing it costs ~0.1 s, not needed for BVH work
+    """ezc3d's c3d object of ``raw``.
 
-    fd, tmp = tempfile.mkstemp(suffix=".c3d", prefix="staggered-")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(raw)
+    ezc3d only reads paths: it is given one to an anonymous file (a memfd,
+    else a temporary file unlinked as soon as it is created), so that no copy
+    of the input is ever left in the temporary folder, whatever kills us.
+    """
+    import ezc3d
+
+    with _anonymous_file(raw) as fd:
         try:
-            return ezc3d.c3d(tmp)
+            return ezc3d.c3d(fd_path(fd))
         except Exception as exc:  # ezc3d raises OSError/RuntimeError/ValueError from C++
+            _raise_out_of_memory(exc)
             message = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"ezc3d cannot read this C3D: {message}", source) from None
-    finally:
-        os.unlink(tmp)
+
+
+def _raise_out_of_memory(exc: Exception) -> None:
+    """Re-raise ezc3d's ``std::bad_alloc`` (a RuntimeError) as the MemoryError it is:
+    the child's memory limit was hit, which :func:`_isolated` reports as such."""
+    if isinstance(exc, MemoryError) or "bad_alloc" in str(exc):
+        raise MemoryError(str(exc)) from None
+
+
+class _anonymous_file:
+    """A descriptor of a file without a name holding ``data`` (context manager)."""
+
+    def __init__(self, data: bytes = b""):
+        self.data = data
+        self.fd = -1
+
+    def __enter__(self) -> int:
+        if hasattr(os, "memfd_create"):
+            self.fd = os.memfd_create("staggered-c3d")
+        else:
+            fh = tempfile.TemporaryFile(prefix="staggered-")  # unlinked at once on POSIX
+            self.fd = os.dup(fh.fileno())
+            fh.close()
+        view = memoryview(self.data)
+        while view:
+            view = view[os.write(self.fd, view) :]
+        os.lseek(self.fd, 0, os.SEEK_SET)
+        return self.fd
+
+    def __exit__(self, *exc) -> None:
+        os.close(self.fd)
+
+
+#: Wall-clock seconds an ezc3d read or write may take: a fixed allowance plus
+#: a time per MB of data (ezc3d reads about 15 MB/s here, so this is a wide margin).
+CHILD_SECONDS = 3.0
+CHILD_SECONDS_PER_MB = 0.5
+#: Memory an ezc3d read or write may allocate: a fixed allowance plus a
+#: multiple of the data size (ezc3d's objects take about 13x the file).
+CHILD_MEMORY = 256 << 20
+CHILD_MEMORY_PER_BYTE = 48
+
+
+def _isolated(fn, what: str, source: str | None, n_bytes: int):
+    """``fn()`` (a call into ezc3d on ``n_bytes`` of data) in a child
+    process, see :mod:`.isolate`.
+
+    A crash, hang or runaway allocation of ezc3d becomes one ``DataError``
+    naming ``source`` (None: the command's input): "the C3D ``what``
+    failed ...".
+    """
+    import ezc3d  # noqa: F401 - imported here so that the child inherits it (~0.1 s)
+
+    memory = CHILD_MEMORY + CHILD_MEMORY_PER_BYTE * n_bytes
+    seconds = CHILD_SECONDS + CHILD_SECONDS_PER_MB * n_bytes / 1e6
+    try:
+        return run_isolated(fn, memory=memory, seconds=seconds)
+    except ChildFailed as exc:
+        log.debug("ezc3d in a child process: %s", exc.why)
+        raise DataError(f"the C3D {what} (malformed parameters?)", source) from None
 
 
 def _point_labels(parameters) -> list[str]:
@@ -527,8 +714,9 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
 
     With ``motion.source`` (the bytes of the file it was read from) the
     source is rewritten with new points: every parameter, analog channel and
-    header event is kept.  Markers are matched to the source by label, so
-    their residuals and camera masks carry over; new markers get residual 0.
+    header event is kept.  Markers are matched to the source by label (the
+    k-th marker of a repeated label to the k-th of the source), so their
+    residuals and camera masks carry over; new markers get residual 0.
     When the frame count or rate differs from the source, frames keep their
     time from the first frame on and so do analog samples: at the source's
     rate they are cut at the new end, or the last sample is held to fill a
@@ -556,12 +744,36 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     points = np.asarray(motion.points, dtype=np.float64)
     labels = [str(label) for label in motion.labels]
     _check_motion(points, labels, motion.rate)
-    n_frames, n_markers = points.shape[:2]
+    if not rate_ok(float(motion.rate)):
+        raise DataError(f"cannot write a C3D at {motion.rate:g} Hz: C3D frame rates are {RATE_LIMITS}")
+    n_frames = points.shape[0]
     if n_frames > MAX_WRITE_FRAMES:
         # ezc3d caps the header and POINT:FRAMES at 65535 and writes no other
         # count: any reader, ezc3d included, would silently lose the rest
         raise DataError(f"cannot write {n_frames} frames to C3D: ezc3d writes at most {MAX_WRITE_FRAMES}")
 
+    source_name = "source C3D of the motion"
+    if motion.source:
+        _check_layout(motion.source, source_name)
+    payload = _isolated(
+        lambda: _ezc3d_bytes(motion, points, labels, source_name),
+        "writer failed on the motion's source C3D" if motion.source else "writer failed",
+        None,  # the command's input: the document that holds the source
+        len(motion.source) + points.nbytes,
+    )
+    payload = bytes(payload)
+    # what was written must read back: the same checks as the reader
+    try:
+        check_c3d(payload, "")
+    except DataError as exc:
+        raise DataError(f"cannot write this C3D: the file ezc3d made would not read back ({exc.message})") from None
+    return payload
+
+
+def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], source_name: str) -> bytearray:
+    """The bytes ezc3d writes for ``motion`` (see :func:`c3d_bytes`); runs in
+    the child of :func:`_isolated`."""
+    n_frames, n_markers = points.shape[:2]
     gap = np.isnan(points).any(axis=-1)  # (T, M)
     ez_points = np.ones((4, n_markers, n_frames))
     ez_points[:3] = np.where(gap[..., None], 0.0, points).transpose(2, 1, 0)
@@ -569,8 +781,6 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     camera_masks = np.zeros((7, n_markers, n_frames), dtype=bool)
 
     if motion.source:
-        source_name = "source C3D of the motion"
-        _check_layout(motion.source, source_name)
         c3d = _load_ezc3d(motion.source, source_name)
         _carry_point_metadata(c3d, labels, n_frames, residuals, camera_masks)
         _fit_analogs(c3d, n_frames, motion.rate)
@@ -584,6 +794,7 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
 
     residuals[0][gap.T] = -1.0
     _clean_texts(c3d["parameters"])
+    _one_data_start(c3d["parameters"])
     point = c3d["parameters"]["POINT"]
     _set_point_labels(point, labels, _descriptions_by_label(point))
     _set_parameter(point, "RATE", 4, np.array([float(motion.rate)]))
@@ -592,17 +803,46 @@ def c3d_bytes(motion: MarkerMotion) -> bytes:
     c3d["data"]["points"] = ez_points
     c3d["data"]["meta_points"] = {"residuals": residuals, "camera_masks": camera_masks}
 
-    with tempfile.TemporaryDirectory(prefix="staggered-") as tmpdir:
-        out = os.path.join(tmpdir, "out.c3d")
+    with _anonymous_file() as fd:
         try:
-            c3d.write(out)
+            # ezc3d appends '.c3d' to a path that does not end with it
+            c3d.write(_C3dSuffixed(fd_path(fd)))
         except Exception as exc:  # ezc3d's checks raise ValueError/TypeError/RuntimeError
+            _raise_out_of_memory(exc)
             message = " ".join(str(exc).split()) or type(exc).__name__
             raise DataError(f"ezc3d cannot write this C3D: {message}") from None
-        payload = bytearray(Path(out).read_bytes())
+        size = os.lseek(fd, 0, os.SEEK_END)
+        payload = bytearray(os.pread(fd, size, 0))
     if events is not None:
         payload[_EVENTS_START:_EVENTS_STOP] = events
-    return bytes(payload)
+    return payload  # a bytearray leaves the child without a copy (pickle buffers)
+
+
+class _C3dSuffixed(str):
+    """A path that ezc3d's Python writer takes as is.
+
+    ``ezc3d.c3d.write`` appends ``.c3d`` to a path whose last four
+    characters are not ``.c3d``, which would turn ``/proc/self/fd/5`` into a
+    file that does not exist; this string says it ends with ``.c3d``.
+    """
+
+    def __getitem__(self, key):
+        if key == slice(-4, None):
+            return ".c3d"
+        return str.__getitem__(self, key)
+
+
+def _one_data_start(parameters) -> None:
+    """POINT:DATA_START (and ROTATION's) as one integer, which ezc3d fills in.
+
+    ezc3d writes the block number over the first value it finds: with two
+    values, or a float, the record it writes no longer matches its size.
+    """
+    for group in ("POINT", "ROTATION"):
+        if group in parameters and "DATA_START" in parameters[group]:
+            entry = parameters[group]["DATA_START"]
+            entry["type"] = _INT
+            entry["value"] = np.array([0])
 
 
 def _clean_texts(parameters) -> None:
@@ -668,10 +908,12 @@ def _carry_point_metadata(
     src_residuals = c3d["data"]["meta_points"]["residuals"]  # (1, Ms, Ts)
     src_masks = c3d["data"]["meta_points"]["camera_masks"]  # (7, Ms, Ts)
     src_labels = _point_labels(c3d["parameters"])[: src_residuals.shape[1]]
-    index = {}
+    # the k-th marker of a label takes the k-th source marker of that label:
+    # C3D labels may repeat, and each marker keeps its own residuals
+    index: dict[str, list[int]] = {}
     for i, label in enumerate(src_labels):
-        index.setdefault(label, i)
-    columns = np.array([index.get(label, -1) for label in labels], dtype=int)
+        index.setdefault(label, []).append(i)
+    columns = np.array([index[label].pop(0) if index.get(label) else -1 for label in labels], dtype=int)
     have = np.flatnonzero(columns >= 0)
     overlap = min(n_frames, src_residuals.shape[2])
     if have.size == 0 or overlap == 0:

@@ -112,7 +112,12 @@ def offsets(
 
 
 def _find(doc: Document, name: str, kind: str) -> tuple[int, int]:
-    key = name if kind == ROTATION or doc.kind == "c3d" else f"{name}.position"
+    if doc.kind == "c3d":  # by marker index: a C3D may repeat a label
+        m = doc.source.index(name)  # UsageError for an unknown or ambiguous label
+        for ti, tr in enumerate(doc.tracks):
+            if tr.kind == kind and m in tr.targets:
+                return ti, int(np.flatnonzero(tr.targets == m)[0])
+    key = name if kind == ROTATION else f"{name}.position"
     for ti, tr in enumerate(doc.tracks):
         if tr.kind == kind and key in tr.names:
             return ti, tr.names.index(key)
@@ -132,7 +137,7 @@ def joint_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[n
     for name in joints:
         if name not in targets:
             raise UsageError(f"unknown joint or marker {name!r} in --joints")
-        j = targets.index(name)
+        j = doc.source.index(name) if doc.kind == "c3d" else targets.index(name)
         chosen.extend(doc.source.skeleton.subtree(j).tolist() if subtree and doc.kind == "bvh" else [j])
     return [np.isin(tr.targets, chosen) for tr in doc.tracks]
 

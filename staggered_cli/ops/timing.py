@@ -278,7 +278,7 @@ def succession(
     delta = poses[:, None] * step[None, :]
     parents = None
     if doc.kind == "c3d" and chain:
-        parents = marker_chain.chain_parents(len(doc.target_names), [doc.target_names.index(n) for n in chain])
+        parents = marker_chain.chain_parents(len(doc.target_names), [doc.source.index(n) for n in chain])
     return change_refinements(doc, delta, clamp=clamp, marker_parents=parents)
 
 
@@ -294,7 +294,7 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
                 raise UsageError(f"unknown joint or marker {name!r} in --chain")
             if name in chain[:d]:
                 raise UsageError(f"{name!r} appears twice in --chain")
-            depth_of[names.index(name)] = d
+            depth_of[doc.source.index(name) if doc.kind == "c3d" else names.index(name)] = d
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
         raise UsageError("succession needs --joint (or --chain for C3D documents)")

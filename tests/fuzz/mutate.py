@@ -357,10 +357,15 @@ def _c3d_parameters(raw: bytes, offset: int) -> dict[str, tuple[int, int, int, i
 
 @cache
 def c3d_base(path: Path) -> C3dBase:
+    return c3d_base_of(Path(path).read_bytes(), str(path))
+
+
+@cache
+def c3d_base_of(raw: bytes, name: str = "c3d") -> C3dBase:
+    """The parsed view of the C3D bytes ``raw``."""
     from staggered_cli.io.c3d import _check_layout
 
-    raw = Path(path).read_bytes()
-    layout = _check_layout(raw, str(path))
+    layout = _check_layout(raw, name)
     assert layout.processor == 84, "the mutations assume Intel C3D files"
     stride = 4 * layout.n_points + layout.n_analogs * layout.analog_per_frame
     end = layout.data_offset + layout.n_frames * stride * layout.value_bytes
@@ -525,6 +530,270 @@ def c3d_appended(b: C3dBase, rng: random.Random) -> Case:
     return Case("garbage:appended", b.data + junk, False)
 
 
+# ----------------------------------------------- C3D parameter-level edits
+#
+# A parameter section rebuilt record by record (Intel files): a parameter's
+# type code, dimensions and values replaced, then every "offset to the next
+# record" recomputed and the section grown by whole blocks when it must be
+# (the data block moves; the header's data-start word and POINT:DATA_START
+# follow).  Each edit is what another program could have written, so the
+# file stays structurally sound: only the parameter itself is hostile.
+
+#: C3D type code -> bytes per value
+TYPE_BYTES = {-1: 1, 1: 1, 2: 2, 4: 4}
+
+
+@dataclass
+class Record:
+    name_len: int  # the signed byte as stored (negative: locked)
+    ident: int  # negative: a group; positive: a parameter of group ``ident``
+    name: bytes
+    body: bytes  # everything after the offset word, up to the next record
+
+    def split(self) -> tuple[int, tuple[int, ...], bytes, bytes]:
+        """A parameter's (type, dims, values, description part)."""
+        ptype = struct.unpack_from("b", self.body, 0)[0]
+        ndims = self.body[1]
+        dims = tuple(self.body[2 : 2 + ndims])
+        count = int(np.prod(dims)) if dims else 1
+        start = 2 + ndims
+        stop = start + count * TYPE_BYTES[ptype]
+        return ptype, dims, self.body[start:stop], self.body[stop:]
+
+
+def c3d_records(raw: bytes) -> tuple[int, list[Record]]:
+    """(byte offset of the parameter section, its records in file order)."""
+    offset = (raw[0] - 1) * 512
+    pos = offset + 4
+    records = []
+    while pos + 2 <= len(raw):
+        n = struct.unpack_from("b", raw, pos)[0]
+        ident = struct.unpack_from("b", raw, pos + 1)[0]
+        if n == 0 or ident == 0:
+            break
+        name = raw[pos + 2 : pos + 2 + abs(n)]
+        step = struct.unpack_from("<H", raw, pos + 2 + abs(n))[0]
+        body_at = pos + 4 + abs(n)
+        end = pos + 2 + abs(n) + step if step else len(raw)
+        if step == 0:  # the last record: its body ends with its description
+            desc_len_at = _body_end(raw, body_at, ident)
+            end = desc_len_at
+        records.append(Record(n, ident, name, raw[body_at:end]))
+        if step == 0:
+            break
+        pos = pos + 2 + abs(n) + step
+    return offset, records
+
+
+def _body_end(raw: bytes, at: int, ident: int) -> int:
+    if ident < 0:
+        return at + 1 + raw[at]
+    ptype, ndims = struct.unpack_from("b", raw, at)[0], raw[at + 1]
+    dims = raw[at + 2 : at + 2 + ndims]
+    count = int(np.prod(list(dims))) if ndims else 1
+    stop = at + 2 + ndims + count * TYPE_BYTES[ptype]
+    return stop + 1 + raw[stop]
+
+
+def c3d_rebuild(raw: bytes, records: list[Record]) -> bytes:
+    """``raw`` with its parameter section made of ``records``."""
+    offset = (raw[0] - 1) * 512
+    section = bytearray(raw[offset : offset + 4])
+    for r in records:
+        section += struct.pack("bb", r.name_len, r.ident) + r.name + struct.pack("<H", 2 + len(r.body)) + r.body
+    section += b"\x00\x00"  # end mark: a record without a name
+    data_block = struct.unpack_from("<H", raw, 16)[0]
+    have = data_block - raw[0]
+    need = -(-len(section) // 512)
+    grow = max(0, need - have)
+    section += bytes((have + grow) * 512 - len(section))
+    section[2] = have + grow
+    out = bytearray(raw[:offset]) + section + raw[(data_block - 1) * 512 :]
+    if grow:
+        out[16:18] = struct.pack("<H", data_block + grow)
+        out = bytearray(_shift_data_start(bytes(out), grow))
+    return bytes(out)
+
+
+def _shift_data_start(raw: bytes, grow: int) -> bytes:
+    offset, records = c3d_records(raw)
+    groups = {-r.ident: r.name.decode("latin-1") for r in records if r.ident < 0}
+    pos = offset + 4
+    out = bytearray(raw)
+    for r in records:
+        head = 4 + abs(r.name_len)
+        if r.ident > 0 and groups.get(r.ident) in ("POINT", "ROTATION") and r.name == b"DATA_START":
+            ptype, dims, values, _ = r.split()
+            if ptype == 2 and values:
+                at = pos + head + 2 + len(dims)
+                out[at : at + 2] = struct.pack("<h", struct.unpack_from("<h", values)[0] + grow)
+        pos += head + len(r.body)
+    return bytes(out)
+
+
+def c3d_set_parameter(
+    raw: bytes,
+    key: str,
+    *,
+    ptype: int | None = None,
+    dims: tuple[int, ...] | None = None,
+    values: bytes | None = None,
+) -> bytes:
+    """``raw`` with parameter ``key`` ('GROUP:NAME') given a new type code,
+    dimensions and value bytes (each kept when None)."""
+    offset, records = c3d_records(raw)
+    group, name = key.split(":")
+    gid = next(-r.ident for r in records if r.ident < 0 and r.name.decode("latin-1") == group)
+    for r in records:
+        if r.ident == gid and r.name.decode("latin-1") == name:
+            old_type, old_dims, old_values, rest = r.split()
+            ptype = old_type if ptype is None else ptype
+            dims = old_dims if dims is None else dims
+            values = old_values if values is None else values
+            r.body = struct.pack("bB", ptype, len(dims)) + bytes(dims) + values + rest
+            return c3d_rebuild(raw, records)
+    raise KeyError(key)
+
+
+def c3d_parameter(raw: bytes, key: str) -> tuple[int, tuple[int, ...], bytes]:
+    """(type, dims, value bytes) of parameter ``key`` of ``raw``."""
+    _, records = c3d_records(raw)
+    group, name = key.split(":")
+    gid = next(-r.ident for r in records if r.ident < 0 and r.name.decode("latin-1") == group)
+    for r in records:
+        if r.ident == gid and r.name.decode("latin-1") == name:
+            return r.split()[:3]
+    raise KeyError(key)
+
+
+def encode_values(ptype: int, numbers) -> bytes:
+    """Values of C3D type ``ptype`` as bytes (char: ``numbers`` are bytes)."""
+    if ptype == -1:
+        return bytes(numbers)
+    fmt = {1: "B", 2: "h", 4: "f"}[ptype]
+    return struct.pack(f"<{len(numbers)}{fmt}", *numbers)
+
+
+#: Parameters ezc3d reads (as C3D types), the ones each base file holds
+#: decide which are mutated.
+READ_PARAMETERS = (
+    "POINT:USED",
+    "POINT:FRAMES",
+    "POINT:SCALE",
+    "POINT:RATE",
+    "POINT:DATA_START",
+    "POINT:LABELS",
+    "POINT:DESCRIPTIONS",
+    "POINT:UNITS",
+    "ANALOG:USED",
+    "ANALOG:RATE",
+    "ANALOG:GEN_SCALE",
+    "ANALOG:SCALE",
+    "ANALOG:OFFSET",
+    "ANALOG:LABELS",
+    "ANALOG:UNITS",
+    "TRIAL:ACTUAL_START_FIELD",
+    "TRIAL:ACTUAL_END_FIELD",
+    "ROTATION:USED",
+    "ROTATION:DATA_START",
+    "ROTATION:RATE",
+    "ROTATION:RATIO",
+)
+#: Parameters read as one number: an empty array of them is fatal to ezc3d.
+SCALAR_PARAMETERS = {
+    "POINT:USED",
+    "POINT:FRAMES",
+    "POINT:SCALE",
+    "POINT:RATE",
+    "POINT:DATA_START",
+    "ANALOG:USED",
+    "ANALOG:RATE",
+    "ANALOG:GEN_SCALE",
+    "ROTATION:USED",
+    "ROTATION:DATA_START",
+    "ROTATION:RATE",
+    "ROTATION:RATIO",
+}
+
+
+def _read_keys(b: C3dBase) -> list[str]:
+    return [k for k in READ_PARAMETERS if k in b.parameters]
+
+
+def c3d_parameter_type(b: C3dBase, rng: random.Random) -> Case:
+    """A parameter ezc3d reads given another type code, its bytes reinterpreted.
+
+    Always refused: ezc3d would read the values as another type (or not at all).
+    """
+    key = rng.choice(_read_keys(b))
+    ptype, dims, values = c3d_parameter(b.data, key)
+    new = rng.choice([t for t in (-1, 1, 2, 4) if t != ptype and not (ptype in (1, 2) and t in (1, 2))])
+    count = int(np.prod(dims)) if dims else 1
+    size = count * TYPE_BYTES[new]
+    values = (values * (1 + size // max(len(values), 1)))[:size] if values else bytes(size)
+    if new == -1 and not dims:
+        dims = (len(values),)
+    return Case(f"param-type:{key}", c3d_set_parameter(b.data, key, ptype=new, dims=dims, values=values), True)
+
+
+def c3d_parameter_count(b: C3dBase, rng: random.Random) -> Case:
+    """A parameter ezc3d reads with no value (an empty array), with one more
+    value, or as a matrix of the same values.
+
+    No value is refused where ezc3d reads one number; more values may be harmless.
+    """
+    key = rng.choice(_read_keys(b))
+    ptype, dims, values = c3d_parameter(b.data, key)
+    action = rng.choice(["empty", "empty", "more", "matrix"])
+    if action == "empty":
+        new_dims = (dims[:-1] + (0,)) if len(dims) > 1 else (0,)
+        data = c3d_set_parameter(b.data, key, dims=new_dims, values=b"")
+        return Case(f"param-count:empty:{key}", data, key in SCALAR_PARAMETERS)
+    if action == "more" and (not dims or dims[-1] < 255):
+        # one more entry along the last dimension, a copy of the last one
+        new_dims = dims[:-1] + ((dims[-1] if dims else 1) + 1,)
+        entry = (int(np.prod(dims[:-1])) if len(dims) > 1 else 1) * TYPE_BYTES[ptype]
+        extra = values[-entry:] if values else bytes(entry)
+        data = c3d_set_parameter(b.data, key, dims=new_dims, values=values + extra)
+        return Case(f"param-count:more:{key}", data, False)
+    # a scalar as a 1x1 matrix, a vector as an (n, 1) matrix: the same values
+    new_dims = (dims or (1,)) + (1,)
+    return Case(f"param-count:matrix:{key}", c3d_set_parameter(b.data, key, dims=new_dims, values=values), False)
+
+
+def c3d_parameter_value(b: C3dBase, rng: random.Random) -> Case:
+    """Numbers no capture holds in the parameters that size and time the data."""
+    nan, inf = float("nan"), float("inf")
+    choices = {  # key: (values, refused for sure)
+        "POINT:RATE": ([0.0, -50.0, 1e30, nan, inf, 1e-30, 1e6], True),
+        "POINT:SCALE": ([0.0, nan, inf], False),
+        "POINT:USED": ([-1, -32768], True),
+        "POINT:FRAMES": ([-1, 32767], False),
+        "ANALOG:RATE": ([-1000.0, nan, 1e30], False),
+        "ANALOG:GEN_SCALE": ([nan, inf, 0.0], False),
+        "POINT:DATA_START": ([0, -1, 32767], False),
+    }
+    key = rng.choice([k for k in choices if k in b.parameters])
+    pool, strict = choices[key]
+    ptype, _, values = c3d_parameter(b.data, key)
+    value = rng.choice(pool)
+    if key == "POINT:RATE" and value == 0.0:
+        strict = False  # ezc3d then takes the header's rate, which is valid
+    if ptype != 4:
+        value = int(value)
+    new = encode_values(ptype, [value]) + values[TYPE_BYTES[ptype] :]
+    return Case(f"param-value:{key}", c3d_set_parameter(b.data, key, values=new), strict)
+
+
+def c3d_name_length(b: C3dBase, rng: random.Random) -> Case:
+    """A record's name-length byte set to 0x80 (-128) or another wild value."""
+    key = rng.choice(sorted(b.parameters))
+    rec = b.parameters[key][0]
+    data = bytearray(b.data)
+    data[rec] = rng.choice([0x80, 0x81, 0xC0, 0x7F, 0x40])
+    return Case("name-length", bytes(data), False)
+
+
 C3D_MUTATIONS = (
     c3d_truncate,
     c3d_frames_claim,
@@ -536,6 +805,10 @@ C3D_MUTATIONS = (
     c3d_bad_values,
     c3d_garbage,
     c3d_appended,
+    c3d_parameter_type,
+    c3d_parameter_count,
+    c3d_parameter_value,
+    c3d_name_length,
 )
 
 
@@ -856,6 +1129,19 @@ def doc_garbage(b: DocBase, rng: random.Random, fmt: str) -> Case:
     return Case("garbage", head + junk, True)
 
 
+def doc_source_c3d(b: DocBase, rng: random.Random, fmt: str) -> Case:
+    """The embedded source C3D of a C3D document given a parameter-level
+    mutation (type, count, value, name length): what bake rewrites."""
+    manifest, arrays = _parts(b)
+    if manifest["source"]["kind"] != "c3d" or not arrays["source.c3d"].size:
+        return doc_flip(b, rng, fmt)
+    base = c3d_base_of(arrays["source.c3d"].tobytes(), "source.c3d")
+    mutation = rng.choice([c3d_parameter_type, c3d_parameter_count, c3d_parameter_value, c3d_name_length])
+    case = mutation(base, rng)
+    arrays["source.c3d"] = np.frombuffer(case.data, np.uint8)
+    return Case(f"source-c3d:{case.kind}", _encode(manifest, arrays, fmt), case.strict)
+
+
 DOC_MUTATIONS = (
     doc_missing_array,
     doc_wrong_shape,
@@ -869,4 +1155,5 @@ DOC_MUTATIONS = (
     doc_truncate,
     doc_flip,
     doc_garbage,
+    doc_source_c3d,
 )
