@@ -49,6 +49,7 @@ import numpy as np
 from .document import Constraint
 from .errors import UsageError
 from .motion import BvhMotion, MarkerMotion
+from .names import resolve
 from .skeleton import body_joints
 
 #: Default minimum contact duration, seconds (the paper's 0.25 s misses running stance).
@@ -92,11 +93,7 @@ def effector_positions(
     if names is None:
         idx = np.arange(len(labels))
     else:
-        missing = [n for n in names if n not in labels]
-        if missing:
-            shown = ", ".join(labels[:8]) + (", ..." if len(labels) > 8 else "")
-            raise UsageError(f"unknown marker {missing[0]!r} (markers: {shown})")
-        idx = np.array([labels.index(n) for n in names], dtype=int)
+        idx = np.array([resolve(n, labels, None, what="marker") for n in names], dtype=int)
     return tuple(labels[i] for i in idx), motion.points[:, idx], float(motion.figure_height())
 
 
@@ -161,8 +158,7 @@ def contact_joints(
     Names in skeleton (or marker) order; the user's order when given.
     """
     if names is not None:
-        names = tuple(dict.fromkeys(str(n) for n in names))
-        effector_positions(motion, names)  # raises for an unknown name
+        names = tuple(dict.fromkeys(effector_positions(motion, tuple(str(n) for n in names))[0]))  # own names
         if isinstance(motion, BvhMotion):
             from .ik import two_bone_chain
 

@@ -132,6 +132,23 @@ class Document:
         src = self.source
         return tuple(src.skeleton.names) if isinstance(src, BvhMotion) else tuple(src.labels)
 
+    def target_index(self, name: str) -> int:
+        """Index in :attr:`target_names` of the joint or marker the user calls
+        ``name``: the exact name, the name without its subject prefix
+        (``LSHO`` for ``Male:LSHO``), or a body part (``@left-arm``, BVH only);
+        ``UsageError`` suggesting the closest names otherwise
+        (:func:`staggered_cli.names.resolve`)."""
+        from .names import resolve
+
+        src = self.source
+        if isinstance(src, BvhMotion):
+            return src.skeleton.index(name)
+        return resolve(name, src.labels, None, what="marker")
+
+    def target_name(self, name: str) -> str:
+        """The document's own name for ``name`` (see :meth:`target_index`)."""
+        return self.target_names[self.target_index(name)]
+
     @property
     def variable_names(self) -> tuple[str, ...]:
         return tuple(n for tr in self.tracks for n in tr.names)

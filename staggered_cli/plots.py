@@ -247,20 +247,6 @@ def _order_key(doc: Document, variables: list[_Var]) -> np.ndarray:
     return np.array([-height[v.target] for v in variables])
 
 
-def _known_names(doc: Document) -> list[str]:
-    names = list(doc.variable_names)
-    if doc.kind == "bvh":
-        names += [n for n in doc.source.skeleton.names if n not in names]
-    return names
-
-
-def _unknown(doc: Document, name: str) -> UsageError:
-    what = "joint" if doc.kind == "bvh" else "marker"
-    known = [v for v in _known_names(doc) if not v.endswith(".position")] or _known_names(doc)
-    more = ", ..." if len(known) > 8 else ""
-    return UsageError(f"unknown {what} {name!r} ({what}s: {', '.join(known[:8])}{more})")
-
-
 def _rows(doc: Document, joints: Sequence[str] | None, *, rotation_only: bool = False) -> list[_Var]:
     """Variables to draw, in hierarchy order.
 
@@ -274,15 +260,13 @@ def _rows(doc: Document, joints: Sequence[str] | None, *, rotation_only: bool = 
     variables = _variables(doc)
     if joints:
         chosen: set[int] = set()
-        joint_index = {n: j for j, n in enumerate(doc.source.skeleton.names)} if doc.kind == "bvh" else {}
         for name in joints:
-            if name not in joint_index:  # a variable (``Hips.position``) or a C3D marker
-                exact = [v.index for v in variables if v.name == name]
-                if not exact:
-                    raise _unknown(doc, name)
+            exact = [v.index for v in variables if v.name == name]
+            if exact and name not in doc.target_names:  # a variable such as ``Hips.position``
                 chosen.update(exact)
                 continue
-            mine = [v for v in variables if v.target == joint_index[name]]
+            j = doc.target_index(name)  # exact, without subject prefix, or @part; else suggestions
+            mine = [v for v in variables if v.target == j]
             if rotation_only and any(v.kind == ROTATION for v in mine):
                 mine = [v for v in mine if v.kind == ROTATION]
             if not mine:

@@ -256,12 +256,12 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
     V = len(doc.variable_names)
     targets = np.concatenate([tr.targets for tr in doc.tracks])
     if chain:
-        names = list(doc.target_names)
         depth_of = {}
         for d, name in enumerate(chain):
-            if name not in names:
-                raise UsageError(f"unknown joint or marker {name!r} in --chain")
-            depth_of[names.index(name)] = d
+            try:
+                depth_of[doc.target_index(name)] = d
+            except UsageError as err:
+                raise UsageError(f"--chain: {err.message}") from None
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
         raise UsageError("succession needs --joint (or --chain for C3D documents)")
