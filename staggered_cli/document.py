@@ -12,6 +12,7 @@ global order is the second axis of refinement arrays ``(K, V)``.
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from dataclasses import dataclass, field, replace
 
@@ -132,6 +133,10 @@ class Document:
         src = self.source
         return tuple(src.skeleton.names) if isinstance(src, BvhMotion) else tuple(src.labels)
 
+    def seconds(self, t: float, *, sign: bool = False) -> str:
+        """``t`` seconds as messages print it: to the frame's precision (see :func:`seconds`)."""
+        return seconds(t, self.frame_time, sign=sign)
+
     def target_index(self, name: str) -> int:
         """Index in :attr:`target_names` of the joint or marker the user calls
         ``name``: the exact name, the name without its subject prefix
@@ -170,6 +175,19 @@ class Document:
 
     def with_tracks(self, tracks: tuple[Track, ...], **changes) -> Document:
         return replace(self, tracks=tuple(tracks), **changes)
+
+
+def time_decimals(frame_time: float) -> int:
+    """Decimals that tell every frame from the next: 3 at 120 Hz, 2 at 30 or 100 Hz."""
+    if not math.isfinite(frame_time) or frame_time <= 0:
+        return 4
+    return max(1, min(9, math.ceil(-math.log10(frame_time) - 1e-9)))
+
+
+def seconds(t: float, frame_time: float, *, sign: bool = False) -> str:
+    """``'0.933 s'``: a time (or a duration) to the precision of the frames,
+    never a raw float such as ``0.9332980000000001``."""
+    return f"{float(t):{'+' if sign else ''}.{time_decimals(frame_time)}f} s"
 
 
 # --- from dense motion ----------------------------------------------------------
@@ -236,7 +254,7 @@ def from_motion(
     pose_t = np.asarray(pose_t, dtype=float)
     end = frame_t[-1]
     if np.any(pose_t < -1e-9) or np.any(pose_t > end + 1e-9):
-        raise UsageError(f"pose times must lie within the clip (0 to {end:.4f} s)")
+        raise UsageError(f"pose times must lie within the clip (0 to {seconds(end, ft)})")
     variables = dense_variables(motion)
     V = sum(len(names) for _, names, _, _ in variables)
     if refine is None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .common import check_output, finite, read_document, write_motion
+from .common import check_motion_output, check_output, finite, read_document, write_motion
 from .options import force_option, input_argument, output_option
 
 
@@ -40,4 +40,5 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
     if blend < 0:
         raise click.BadParameter(f"must not be negative, got {ik_blend}", param_hint="--ik-blend")
     doc = read_document(input_path)
+    check_motion_output(doc.kind, output)
     write_motion(op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend), output, force)

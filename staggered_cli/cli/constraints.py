@@ -43,7 +43,9 @@ def _check_span(doc, joint: str, start: float, end: float) -> tuple[str, float, 
         two_bone_chain(doc.source.skeleton, joint)  # no chain to solve: UsageError
     half = 0.5 * doc.frame_time  # times as the listing prints them (4 decimals) must be accepted
     if start < -half or end > doc.duration + half:
-        raise UsageError(f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.duration:.4f} s)")
+        raise UsageError(
+            f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.seconds(doc.duration)})"
+        )
     return joint, max(start, 0.0), min(end, doc.duration)
 
 

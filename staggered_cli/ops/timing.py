@@ -51,7 +51,7 @@ def select_poses(
         if np.isnan(a) or np.isnan(b) or a > b:
             raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
         if b < 0 or a > doc.duration + 1e-9:
-            raise UsageError(f"--time {a}:{b} lies outside the clip (0 to {doc.duration:.4f} s)")
+            raise UsageError(f"--time {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if interior and K:
         if poses is not None and (mask[0] or mask[-1]):
@@ -179,7 +179,7 @@ def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
         k, i = (int(x[0]) for x in np.nonzero(bad))
         raise KnotOrderError(
             f"the knots of {tr.names[i]!r} would cross between poses {k} and {k + 1} "
-            f"({doc.pose_t[k]:.4f} s and {doc.pose_t[k + 1]:.4f} s): the timing change is too large "
+            f"({doc.seconds(doc.pose_t[k])} and {doc.seconds(doc.pose_t[k + 1])}): the timing change is too large "
             "(use --clamp to stop short)"
         )
 
@@ -213,7 +213,7 @@ def _warn_far_knots(doc: Document, tr: Track, before: np.ndarray, refine: np.nda
     far = ((refine > 0) & (refine > gap_next[:, None] / 2)) | ((refine < 0) & (-refine > gap_prev[:, None] / 2))
     far &= refine != before
     for k in np.flatnonzero(far.any(axis=1)):
-        which = ", ".join(f"{tr.names[i]} {refine[k, i]:+.3f} s" for i in np.flatnonzero(far[k]))
+        which = ", ".join(f"{tr.names[i]} {doc.seconds(refine[k, i], sign=True)}" for i in np.flatnonzero(far[k]))
         log.warning("pose %d: extreme knots closer to a neighbouring pose than to their own: %s", k, which)
 
 
@@ -239,7 +239,9 @@ def succession(
     if not np.isfinite(power) or not 0 < power <= MAX_POWER:
         raise UsageError(f"--power must be a positive number up to {MAX_POWER}, got {power}")
     if abs(offset) > _longest_shift(doc):
-        raise UsageError(f"--offset must not exceed {_longest_shift(doc):.4f} s (the clip's length), got {offset}")
+        raise UsageError(
+            f"--offset must not exceed {doc.seconds(_longest_shift(doc))} (the clip's length), got {offset:g}"
+        )
     depth = _depths(doc, joint, chain)
     if poses is None:
         poses = select_poses(doc)
@@ -286,7 +288,9 @@ def randomize(
     (all by default; with ``subtree`` their descendants too), reproducible by
     ``seed``."""
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
-        raise UsageError(f"--tau must be between 0 and {_longest_shift(doc):.4f} s (the clip's length), got {tau}")
+        raise UsageError(
+            f"--tau must be between 0 and {doc.seconds(_longest_shift(doc))} (the clip's length), got {tau:g}"
+        )
     mask = np.concatenate(joint_mask(doc, joints, subtree))  # the same partial poses as edit-pose
     if poses is None:
         poses = select_poses(doc)
@@ -305,7 +309,10 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
         raise UsageError("the first and last pose pin the clip's ends and cannot be retimed")
     if not np.isfinite(new_time) or not doc.pose_t[k - 1] < new_time < doc.pose_t[k + 1]:
         lo, hi = doc.pose_t[k - 1], doc.pose_t[k + 1]
-        raise UsageError(f"pose {k} can move only between its neighbours ({lo:.4f} s and {hi:.4f} s), got {new_time}")
+        raise UsageError(
+            f"pose {k} can move only between its neighbours ({doc.seconds(lo)} and {doc.seconds(hi)}), "
+            f"got {doc.seconds(new_time)}"
+        )
     dt = new_time - doc.pose_t[k]
     tracks = []
     for tr in doc.tracks:
@@ -313,7 +320,7 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
         try:
             tracks.append(with_knot_times(tr, kt))
         except KnotOrderError as exc:
-            raise KnotOrderError(f"moving pose {k} to {new_time:.4f} s: {exc}") from None
+            raise KnotOrderError(f"moving pose {k} to {doc.seconds(new_time)}: {exc}") from None
     pose_t = doc.pose_t.copy()
     pose_t[k] = new_time
     constraints = tuple(c.warped(doc.pose_t, pose_t) for c in doc.constraints)
