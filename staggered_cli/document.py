@@ -476,6 +476,8 @@ def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
             "number_format": src.number_format,
         }
         arrays["source.channels"] = src.channels
+        if src.source:  # the file's text, so that bake keeps its layout and numbers as written
+            arrays["source.bvh"] = np.frombuffer(src.source, dtype=np.uint8)
     else:
         manifest["c3d"] = {"labels": list(src.labels), "rate": src.rate, "units": src.units}
         arrays["source.points"] = src.points
@@ -570,8 +572,14 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 ch.shape == (frames, sum(len(c) for c in sk.channels)),
                 f"source.channels has shape {ch.shape}, expected ({frames}, channels)",
             )
+            text = arr("source.bvh", 1, "u").tobytes() if "source.bvh" in arrays else b""
+            sha = str(manifest.get("source", {}).get("sha256", ""))
+            need(
+                not text or not sha or hashlib.sha256(text).hexdigest() == sha,
+                "source.bvh is not the source file (its checksum differs from the manifest's)",
+            )
             source: BvhMotion | MarkerMotion = BvhMotion(
-                sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"])
+                sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"]), source=text
             )
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")

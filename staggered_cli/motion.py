@@ -39,6 +39,9 @@ class BvhMotion:
     frame_time : float, seconds per frame as written.
     frame_time_text : str, the frame time token as written (kept on output).
     number_format : str, printf format that reproduces the file's numbers.
+    source : bytes, the file it was read from (may be empty): writing keeps
+        its layout and the text of every number that did not change
+        (:func:`staggered_cli.io.bvh.bvh_bytes`).
     """
 
     skeleton: Skeleton
@@ -46,6 +49,7 @@ class BvhMotion:
     frame_time: float
     frame_time_text: str = ""
     number_format: str = "%.6f"
+    source: bytes = field(default=b"", repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:
