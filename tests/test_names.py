@@ -269,7 +269,7 @@ def test_one_batch_steps_serves_every_dev_skeleton():
         lib.mkdir()
         for f in files:
             shutil.copyfile(f, lib / f.name)
-        r = CliRunner().invoke(cli, ["-q", "batch", str(lib), str(out), "--jobs", "2", "--steps", steps])
+        r = CliRunner().invoke(cli, ["batch", str(lib), str(out), "--jobs", "2", "--steps", steps])
         assert r.exit_code == 0, r.stdout + r.stderr
         assert "10 done, 0 skipped, 0 failed" in r.stdout
         for f in files:

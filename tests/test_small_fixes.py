@@ -226,3 +226,22 @@ def test_a_resampled_bake_keeps_the_header_as_written():
     assert lines[1:3] == [b"Frames: 100", b"Frame Time:   0.0333333"]
     assert b"\n" not in out.replace(b"\r\n", b"")
     assert parse_bvh(out).channels.shape == (100, 63)
+
+
+def test_a_document_whose_source_text_is_not_the_source_is_refused():
+    from staggered_cli.io.document import document_bytes, parse_document
+
+    manifest, arrays = parse_document(document("bandai2_run_normal_001.bvh"), "doc")
+    text = arrays["source.bvh"].copy()
+    text[text.tobytes().index(b"Hips")] = ord("X")  # a header that no longer matches
+    arrays["source.bvh"] = text
+    r = run(["bake", "-", "-o", "-"], input=document_bytes(manifest, arrays, "npz"))
+    one_line_error(r, 1, "<stdin>", "source.bvh is not the source file")
+    del arrays["source.bvh"]  # a document without the text still bakes, in the source's number format
+    r = run(["bake", "-", "-o", "-"], input=document_bytes(manifest, arrays, "npz"))
+    assert r.exit_code == 0, r.stderr
+    np.testing.assert_allclose(
+        parse_bvh(r.stdout_bytes).channels,
+        parse_bvh(mocap("bandai2_run_normal_001.bvh").read_bytes()).channels,
+        atol=1e-6,
+    )
