@@ -50,6 +50,7 @@ import numpy as np
 from .document import Constraint
 from .errors import UsageError
 from .motion import BvhMotion, MarkerMotion
+from .names import resolve
 from .skeleton import body_joints
 
 log = logging.getLogger(__name__)
@@ -94,8 +95,8 @@ def effector_positions(
     labels = motion.labels
     if names is None:
         idx = np.arange(len(labels))
-    else:  # UsageError for an unknown or ambiguous label
-        idx = np.array([motion.index(n) for n in names], dtype=int)
+    else:
+        idx = np.array([resolve(n, labels, None, what="marker") for n in names], dtype=int)
     return tuple(labels[i] for i in idx), motion.points[:, idx], float(motion.figure_height())
 
 
@@ -160,8 +161,7 @@ def contact_joints(
     Names in skeleton (or marker) order; the user's order when given.
     """
     if names is not None:
-        names = tuple(dict.fromkeys(str(n) for n in names))
-        effector_positions(motion, names)  # raises for an unknown name
+        names = tuple(dict.fromkeys(effector_positions(motion, tuple(str(n) for n in names))[0]))  # own names
         if isinstance(motion, BvhMotion):
             from .ik import two_bone_chain
 

@@ -12,6 +12,7 @@ global order is the second axis of refinement arrays ``(K, V)``.
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from dataclasses import dataclass, field, replace
 
@@ -132,6 +133,27 @@ class Document:
         src = self.source
         return tuple(src.skeleton.names) if isinstance(src, BvhMotion) else tuple(src.labels)
 
+    def seconds(self, t: float, *, sign: bool = False) -> str:
+        """``t`` seconds as messages print it: to the frame's precision (see :func:`seconds`)."""
+        return seconds(t, self.frame_time, sign=sign)
+
+    def target_index(self, name: str) -> int:
+        """Index in :attr:`target_names` of the joint or marker the user calls
+        ``name``: the exact name, the name without its subject prefix
+        (``LSHO`` for ``Male:LSHO``), or a body part (``@left-arm``, BVH only);
+        ``UsageError`` suggesting the closest names otherwise
+        (:func:`staggered_cli.names.resolve`)."""
+        from .names import resolve
+
+        src = self.source
+        if isinstance(src, BvhMotion):
+            return src.skeleton.index(name)
+        return resolve(name, src.labels, None, what="marker")
+
+    def target_name(self, name: str) -> str:
+        """The document's own name for ``name`` (see :meth:`target_index`)."""
+        return self.target_names[self.target_index(name)]
+
     @property
     def variable_names(self) -> tuple[str, ...]:
         return tuple(n for tr in self.tracks for n in tr.names)
@@ -153,6 +175,19 @@ class Document:
 
     def with_tracks(self, tracks: tuple[Track, ...], **changes) -> Document:
         return replace(self, tracks=tuple(tracks), **changes)
+
+
+def time_decimals(frame_time: float) -> int:
+    """Decimals that tell every frame from the next: 3 at 120 Hz, 2 at 30 or 100 Hz."""
+    if not math.isfinite(frame_time) or frame_time <= 0:
+        return 4
+    return max(1, min(9, math.ceil(-math.log10(frame_time) - 1e-9)))
+
+
+def seconds(t: float, frame_time: float, *, sign: bool = False) -> str:
+    """``'0.933 s'``: a time (or a duration) to the precision of the frames,
+    never a raw float such as ``0.9332980000000001``."""
+    return f"{float(t):{'+' if sign else ''}.{time_decimals(frame_time)}f} s"
 
 
 # --- from dense motion ----------------------------------------------------------
@@ -219,7 +254,7 @@ def from_motion(
     pose_t = np.asarray(pose_t, dtype=float)
     end = frame_t[-1]
     if np.any(pose_t < -1e-9) or np.any(pose_t > end + 1e-9):
-        raise UsageError(f"pose times must lie within the clip (0 to {end:.4f} s)")
+        raise UsageError(f"pose times must lie within the clip (0 to {seconds(end, ft)})")
     variables = dense_variables(motion)
     V = sum(len(names) for _, names, _, _ in variables)
     if refine is None:
@@ -441,6 +476,8 @@ def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
             "number_format": src.number_format,
         }
         arrays["source.channels"] = src.channels
+        if src.source:  # the file's text, so that bake keeps its layout and numbers as written
+            arrays["source.bvh"] = np.frombuffer(src.source, dtype=np.uint8)
     else:
         manifest["c3d"] = {"labels": list(src.labels), "rate": src.rate, "units": src.units}
         arrays["source.points"] = src.points
@@ -535,8 +572,14 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 ch.shape == (frames, sum(len(c) for c in sk.channels)),
                 f"source.channels has shape {ch.shape}, expected ({frames}, channels)",
             )
+            text = arr("source.bvh", 1, "u").tobytes() if "source.bvh" in arrays else b""
+            sha = str(manifest.get("source", {}).get("sha256", ""))
+            need(
+                not text or not sha or hashlib.sha256(text).hexdigest() == sha,
+                "source.bvh is not the source file (its checksum differs from the manifest's)",
+            )
             source: BvhMotion | MarkerMotion = BvhMotion(
-                sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"])
+                sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"]), source=text
             )
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")

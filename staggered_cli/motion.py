@@ -17,7 +17,6 @@ from functools import cached_property
 import numpy as np
 
 from . import quat
-from .errors import UsageError
 from .skeleton import (
     POSITION_CHANNELS,
     ROTATION_CHANNELS,
@@ -40,6 +39,9 @@ class BvhMotion:
     frame_time : float, seconds per frame as written.
     frame_time_text : str, the frame time token as written (kept on output).
     number_format : str, printf format that reproduces the file's numbers.
+    source : bytes, the file it was read from (may be empty): writing keeps
+        its layout and the text of every number that did not change
+        (:func:`staggered_cli.io.bvh.bvh_bytes`).
     """
 
     skeleton: Skeleton
@@ -47,6 +49,7 @@ class BvhMotion:
     frame_time: float
     frame_time_text: str = ""
     number_format: str = "%.6f"
+    source: bytes = field(default=b"", repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:
@@ -133,19 +136,15 @@ class MarkerMotion:
         return 1.0 / self.rate
 
     def index(self, label: str) -> int:
-        """Index of the marker ``label``.
+        """Index of the marker ``label`` (exact, or without its subject prefix).
 
-        ``UsageError`` when no marker has it (listing a few), or when several
-        do: a C3D may repeat a label, and an edit of "the first one" would
-        silently leave the others alone.
+        ``UsageError`` when no marker has it (suggesting close ones), or when
+        several do: a C3D may repeat a label, and an edit of "the first one"
+        would silently leave the others alone.
         """
-        count = self.labels.count(label)
-        if count == 1:
-            return self.labels.index(label)
-        if count > 1:
-            raise UsageError(f"marker label {label!r} is ambiguous: {count} markers share it")
-        shown = ", ".join(self.labels[:8]) + (", ..." if len(self.labels) > 8 else "")
-        raise UsageError(f"unknown marker {label!r} (markers: {shown})")
+        from .names import resolve
+
+        return resolve(label, self.labels, None, what="marker")
 
     def figure_height(self) -> float:
         seen = np.all(np.isfinite(self.points), axis=2)  # (T, M)

@@ -247,20 +247,6 @@ def _order_key(doc: Document, variables: list[_Var]) -> np.ndarray:
     return np.array([-height[v.target] for v in variables])
 
 
-def _known_names(doc: Document) -> list[str]:
-    names = list(doc.variable_names)
-    if doc.kind == "bvh":
-        names += [n for n in doc.source.skeleton.names if n not in names]
-    return names
-
-
-def _unknown(doc: Document, name: str) -> UsageError:
-    what = "joint" if doc.kind == "bvh" else "marker"
-    known = [v for v in _known_names(doc) if not v.endswith(".position")] or _known_names(doc)
-    more = ", ..." if len(known) > 8 else ""
-    return UsageError(f"unknown {what} {name!r} ({what}s: {', '.join(known[:8])}{more})")
-
-
 def _rows(doc: Document, joints: Sequence[str] | None, *, rotation_only: bool = False) -> list[_Var]:
     """Variables to draw, in hierarchy order.
 
@@ -274,15 +260,13 @@ def _rows(doc: Document, joints: Sequence[str] | None, *, rotation_only: bool = 
     variables = _variables(doc)
     if joints:
         chosen: set[int] = set()
-        joint_index = {n: j for j, n in enumerate(doc.source.skeleton.names)} if doc.kind == "bvh" else {}
         for name in joints:
-            if name not in joint_index:  # a variable (``Hips.position``) or a C3D marker
-                exact = [v.index for v in variables if v.name == name]
-                if not exact:
-                    raise _unknown(doc, name)
+            exact = [v.index for v in variables if v.name == name]
+            if exact and name not in doc.target_names:  # a variable such as ``Hips.position``
                 chosen.update(exact)
                 continue
-            mine = [v for v in variables if v.target == joint_index[name]]
+            j = doc.target_index(name)  # exact, without subject prefix, or @part; else suggestions
+            mine = [v for v in variables if v.target == j]
             if rotation_only and any(v.kind == ROTATION for v in mine):
                 mine = [v for v in mine if v.kind == ROTATION]
             if not mine:
@@ -976,6 +960,33 @@ def _subjects(subject, compare, name: str | None, compare_name: str | None) -> l
     return out
 
 
+def skeleton_difference(a, b) -> str | None:
+    """How the figure of ``b`` differs from that of ``a`` (documents or
+    clips), in a few words, or None when they have the same joints (or
+    markers) and sizes within 10 %: ``preview --compare`` warns, since
+    the two drawings then do not line up joint for joint."""
+    from .document import Document
+    from .motion import BvhMotion
+
+    clips = [x.source if isinstance(x, Document) else x for x in (a, b)]
+    names = [tuple(c.skeleton.names) if isinstance(c, BvhMotion) else tuple(c.labels) for c in clips]
+    kinds = ["skeleton" if isinstance(c, BvhMotion) else "marker set" for c in clips]
+    if kinds[0] != kinds[1]:
+        return f"a {kinds[1]}, not a {kinds[0]}"
+    what = "joint" if kinds[0] == "skeleton" else "marker"
+    if names[0] != names[1]:
+        missing = [n for n in names[0] if n not in names[1]]
+        extra = [n for n in names[1] if n not in names[0]]
+        if missing or extra:
+            first = f"no {what} {missing[0]}" if missing else f"an extra {what} {extra[0]}"
+            return f"{len(names[1])} {what}s against {len(names[0])}, {first}"
+        return f"the same {what}s in another order"
+    h = [float(c.figure_height()) for c in clips]
+    if abs(h[1] - h[0]) > 0.1 * max(h[0], 1e-12):
+        return f"another size: {h[1]:.4g} file units tall against {h[0]:.4g}"
+    return None
+
+
 def _poses_of(sticks: list[_Stick]) -> np.ndarray | None:
     return next((s.pose_t for s in sticks if s.pose_t is not None), None)
 
@@ -1047,6 +1058,19 @@ def _legend(sticks: list[_Stick], line) -> list:
     ]
 
 
+def gif_durations(gaps: np.ndarray) -> list[int]:
+    """Frame durations in milliseconds, whole centiseconds (GIF's unit), for
+    frames that should last ``gaps`` (N,) seconds each.
+
+    Rounding each frame on its own drifts (a 1/15 s frame becomes 0.06 s:
+    10 % fast); rounding the running end time instead spreads the error, so
+    the total is within half a centisecond of ``gaps.sum()`` (callers keep
+    every gap at 0.05 s or more, above the 2 cs browsers honour).
+    """
+    ends = np.rint(100.0 * np.cumsum(np.asarray(gaps, dtype=float))).astype(int)
+    return (10 * np.diff(ends, prepend=0)).tolist()
+
+
 def preview_gif(
     subject: Document | BvhMotion | MarkerMotion,
     *,
@@ -1116,11 +1140,11 @@ def preview_gif(
     fig.set_layout_engine("none")  # the layout of the first frame holds: no solve per frame
     rest = (render(t, lab) for t, lab in zip(times[1:], labels[1:], strict=True))
     if at == "poses" and pose_t is not None and len(times) > 1:
-        gaps = np.diff(times, append=times[-1] + 1.0)
-        durations = [int(round(1000 * min(max(g, 0.1), 1.0))) for g in gaps]
+        gaps = np.clip(np.diff(times, append=times[-1] + 1.0), 0.1, 1.0)
     else:
         gap = float(np.median(np.diff(times))) if len(times) > 1 else 0.5
-        durations = [int(round(1000 * min(max(gap, 0.05), 1.0)))] * len(times)
+        gaps = np.clip(np.diff(times, append=times[-1] + gap), 0.05, 1.0)  # real time
+    durations = gif_durations(gaps)
     buf = io.BytesIO()
     first.save(buf, format="GIF", save_all=True, append_images=rest, duration=durations, loop=0)
     return buf.getvalue()

@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quat
-from .errors import UsageError
 
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
@@ -45,13 +44,14 @@ class Skeleton:
         return len(self.names)
 
     def index(self, name: str) -> int:
-        """Index of joint ``name``; ``UsageError`` listing a few names if unknown."""
-        try:
+        """Index of joint ``name``: exact, without a namespace prefix, or a body
+        part such as ``@left-arm`` (:func:`staggered_cli.names.resolve`);
+        ``UsageError`` suggesting close names if unknown."""
+        from .names import resolve
+
+        if name in self.names:
             return self.names.index(name)
-        except ValueError:
-            raise UsageError(
-                f"unknown joint {name!r} (joints: {', '.join(self.names[:8])}{', ...' if len(self.names) > 8 else ''})"
-            ) from None
+        return resolve(name, self.names, self.parents, what="joint")
 
     def rotation_order(self, j: int) -> str:
         """Euler order of joint ``j`` as axis letters, e.g. ``'ZXY'`` ('' if none)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .common import check_output, finite, read_document, write_motion
+from .common import check_motion_output, check_output, finite, read_document, write_motion
 from .options import force_option, input_argument, output_option
 
 
@@ -45,4 +45,5 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
 
         if not rate_ok(rate):  # the limits of the C3D reader: never write what it refuses
             raise click.BadParameter(f"a C3D is written at {RATE_LIMITS}, got {fps}", param_hint="--fps")
+    check_motion_output(doc.kind, output)
     write_motion(op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend), output, force)

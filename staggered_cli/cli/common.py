@@ -7,7 +7,7 @@ import math
 
 import click
 
-from ..errors import DataError, StaggeredError
+from ..errors import DataError, StaggeredError, UsageError
 from .options import check_output, document_format, emit, load_document
 
 
@@ -44,6 +44,23 @@ def write_motion(motion, output: str, force: bool) -> None:
         from ..io.c3d import c3d_bytes
 
         emit(output, c3d_bytes(motion), force)
+
+
+#: Output name endings that say what a file holds (compared without case).
+_KIND_OF_EXTENSION = {".bvh": "bvh", ".c3d": "c3d", ".stag": "document", ".npz": "document", ".json": "document"}
+
+
+def check_motion_output(kind: str, output: str) -> None:
+    """Refuse an output name whose extension says another kind than the
+    ``kind`` (``'bvh'`` or ``'c3d'``) a bake writes: ``-o walk.c3d`` of a BVH
+    document would otherwise hold BVH text.  Names without a known
+    extension (``-``, ``/dev/null``, ``out.txt``) are taken as they are."""
+    import os
+
+    said = _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
+    if output != "-" and said is not None and said != kind:
+        what = "a document" if said == "document" else said.upper()
+        raise UsageError(f"a {kind.upper()} document bakes to {kind.upper()}, but the name says {what}", source=output)
 
 
 def finite(value: str, what: str) -> float:

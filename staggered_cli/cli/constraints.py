@@ -31,22 +31,22 @@ def parse_span(value: str) -> tuple[str, float, float]:
     return joint, start, end
 
 
-def _check_span(doc, joint: str, start: float, end: float) -> tuple[float, float]:
+def _check_span(doc, joint: str, start: float, end: float) -> tuple[str, float, float]:
     """A constraint to add must name a joint (with a chain to solve) or marker,
-    and lie within the clip."""
+    and lie within the clip: (the document's own name for it, start, end)."""
     from ..errors import UsageError
     from ..ik import two_bone_chain
     from ..motion import BvhMotion
 
-    src = doc.source
-    if isinstance(src, BvhMotion):
-        two_bone_chain(src.skeleton, joint)  # unknown joint or no chain: UsageError
-    else:
-        src.index(joint)  # unknown or ambiguous label: UsageError
+    joint = doc.target_name(joint)  # exact, without subject prefix, or @part; else UsageError
+    if isinstance(doc.source, BvhMotion):
+        two_bone_chain(doc.source.skeleton, joint)  # no chain to solve: UsageError
     half = 0.5 * doc.frame_time  # times as the listing prints them (4 decimals) must be accepted
     if start < -half or end > doc.duration + half:
-        raise UsageError(f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.duration:.4f} s)")
-    return max(start, 0.0), min(end, doc.duration)
+        raise UsageError(
+            f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.seconds(doc.duration)})"
+        )
+    return joint, max(start, 0.0), min(end, doc.duration)
 
 
 def _detect(doc, joints: list[str] | None, min_contact: float | None, tolerance: float | None) -> tuple:
@@ -190,9 +190,14 @@ def constraints(
                 source="<stdin>" if input_path == STDIO else input_path,
             )
         drop = {k % n for k in removes}
+        if len(drop) < len(removes):
+            from ..errors import UsageError
+
+            twice = next(k for i, k in enumerate(removes) if k % n in {j % n for j in removes[:i]})
+            raise UsageError(f"--remove {twice}: constraint {twice % n} is named more than once")
         cons = tuple(c for i, c in enumerate(cons) if i not in drop)
     for joint, start, end in spans:
-        start, end = _check_span(doc, joint, start, end)
+        joint, start, end = _check_span(doc, joint, start, end)
         cons = cons + (Constraint(joint, start, end, pin=True),)  # the user says it is planted
     cons = tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint)))
     write_document(replace(doc, constraints=cons), output, fmt, force)

@@ -88,6 +88,8 @@ def edit_pose(
     w = finite(exaggerate, "--exaggerate") if exaggerate is not None else None
     if new_time is not None and shift is not None:
         raise click.UsageError("give --time or --shift, not both")
+    if subtree and not joints:
+        raise click.UsageError("--subtree needs --joints: it adds the descendants of the joints named there")
     if (from_bvh is None) != (frame is None):
         raise click.UsageError("--from-bvh and --frame go together")
     if root and from_bvh is None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 
 import click
@@ -111,6 +112,15 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
         raise UsageError("FILE and --compare cannot both be standard input")
     subject = _subject(input_path)
     other = _subject(compare) if compare is not None else None
+    if other is not None:
+        differs = plots.skeleton_difference(subject, other)
+        if differs:
+            logging.getLogger("staggered_cli").warning(
+                "--compare %s is another figure than %s (%s): the drawings do not match joint for joint",
+                title_name(compare),
+                title_name(input_path),
+                differs,
+            )
     names = {"name": title_name(input_path), "compare_name": title_name(compare) if compare else None}
     if gif:
         data = plots.preview_gif(subject, compare=other, at=what or "frames", count=count, dpi=dpi or 80, **names)

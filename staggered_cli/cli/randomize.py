@@ -26,6 +26,8 @@ def randomize(input_path, tau, seed, joints, subtree, poses, time, clamp, output
     t = finite(tau, "--tau")
     if t < 0:
         raise click.BadParameter(f"must not be negative, got {tau}", param_hint="--tau")
+    if subtree and not joints:
+        raise click.UsageError("--subtree needs --joints: it adds the descendants of the joints named there")
     if seed < 0:
         raise click.BadParameter(f"must not be negative, got {seed}", param_hint="--seed")
     doc = read_document(input_path)

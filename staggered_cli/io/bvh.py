@@ -3,9 +3,11 @@
 The header is parsed here by hand and the MOTION block with numpy in float64
 (bvhio is 20x slower, keeps float32 and reformats numbers; it serves as an
 independent oracle in the tests).  Writing keeps the hierarchy, joint order,
-channel order, End Sites and the frame time as written, and prints numbers in
-the format the source used, so an unchanged round trip gives back the
-source's numbers.
+channel order, End Sites and the frame time as written.  A motion read from a
+file keeps that file's text: its header (offsets as written, indentation,
+line endings) and, in the MOTION block, the source's own token and spacing for
+every number that did not change, so an unchanged round trip gives back the
+file byte for byte.  Other numbers are printed in the format the source used.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def read_bvh(path: str | os.PathLike, data: bytes | None = None, name: str | Non
 
 def parse_bvh(data: bytes) -> BvhMotion:
     """Parse BVH bytes.  See :func:`read_bvh`."""
+    source = data
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise DataError("is UTF-16 encoded; BVH files are plain ASCII text (save it as UTF-8)")
     if data.startswith(b"\xef\xbb\xbf"):
@@ -82,7 +85,7 @@ def parse_bvh(data: bytes) -> BvhMotion:
     channels, frame_time, frame_time_text, fmt = _parse_motion(
         data[motion_at:], sum(len(c) for c in skeleton.channels), header_lines
     )
-    return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt)
+    return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt, source=source)
 
 
 def check_header(head: bytes) -> None:
@@ -374,7 +377,20 @@ def _fmt_number(x: float) -> str:
 
 
 def bvh_bytes(motion: BvhMotion) -> bytes:
-    """The BVH file of ``motion`` as bytes (LF line endings)."""
+    """The BVH file of ``motion`` as bytes.
+
+    With ``motion.source`` (the file it was read from, same skeleton) the
+    source's text is kept: the header as written (only the ``Frames:`` and
+    ``Frame Time:`` values follow the motion) and, at the same frame count,
+    the source's token and spacing for every number equal to the source's
+    value at that place; changed numbers are printed with
+    ``motion.number_format``.  Without a usable source: tab-indented header,
+    LF line endings, every number in ``motion.number_format``.
+    """
+    if motion.source:
+        kept = _in_source_layout(motion)
+        if kept is not None:
+            return kept
     sk = motion.skeleton
     out: list[str] = ["HIERARCHY"]
     ends: dict[int, list[np.ndarray]] = {}
@@ -420,6 +436,91 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     flat = ch.ravel().tolist()
     body = (row * ch.shape[0]) % tuple(flat)
     return (header + body).encode("utf-8")
+
+
+_LINE = re.compile(rb"[^\r\n]*(?:\r\n|\r|\n|$)")
+_FRAMES_LINE = re.compile(rb"^(\s*Frames\s*:\s*)(\S+)(.*)$", re.IGNORECASE | re.DOTALL)
+_FTIME_LINE = re.compile(rb"^(\s*Frame\s+Time\s*:\s*)(\S+)(.*)$", re.IGNORECASE | re.DOTALL)
+
+
+def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
+    return (
+        a.names == b.names
+        and a.channels == b.channels
+        and np.array_equal(a.parents, b.parents)
+        and np.array_equal(a.offsets, b.offsets)
+        and np.array_equal(a.end_parents, b.end_parents)
+        and np.array_equal(a.end_offsets, b.end_offsets)
+    )
+
+
+def _in_source_layout(motion: BvhMotion) -> bytes | None:
+    """``motion`` written in the text of ``motion.source`` (see :func:`bvh_bytes`),
+    or None when the source is not a BVH of the same skeleton."""
+    data = motion.source
+    bom = b"\xef\xbb\xbf" if data.startswith(b"\xef\xbb\xbf") else b""
+    data = data[len(bom) :]
+    at = _find_motion(data)
+    if at < 0:
+        return None
+    try:
+        if not _same_skeleton(_parse_hierarchy(data[:at].decode("utf-8")), motion.skeleton):
+            return None
+    except (DataError, UnicodeDecodeError):
+        return None
+    lines, pos = [], at
+    for _ in range(3):  # MOTION, Frames:, Frame Time:
+        m = _LINE.match(data, pos)
+        if m is None or m.end() == pos:
+            return None
+        lines.append(m.group())
+        pos = m.end()
+    frames, ftime = _FRAMES_LINE.match(lines[1]), _FTIME_LINE.match(lines[2])
+    if frames is None or ftime is None:
+        return None
+    ch = motion.channels
+    T, C = ch.shape
+    text = motion.frame_time_text or _fmt_number(motion.frame_time)
+    lines[1] = frames.group(1) + str(T).encode() + frames.group(3)
+    lines[2] = ftime.group(1) + text.encode("ascii") + ftime.group(3)
+    head = bom + data[:at] + b"".join(lines)
+    body = data[pos:]
+    if T == 0:
+        return head
+    parts = _source_numbers(body, T, C)
+    if parts is None:  # another frame count (a resampled bake): the source's line ending
+        newline = lines[2][len(lines[2].rstrip(b"\r\n")) :] or b"\n"
+        row = " ".join([motion.number_format] * C) + newline.decode("ascii")
+        return head + ((row * T) % tuple(ch.ravel().tolist())).encode("ascii")
+    pieces, first, values = parts
+    changed = np.flatnonzero(values != ch.ravel())
+    if len(changed) == 0:
+        return head + body
+    fmt = motion.number_format
+    new = (" ".join([fmt] * len(changed)) % tuple(ch.ravel()[changed].tolist())).encode("ascii").split(b" ")
+    for i, tok in zip((first + 2 * changed).tolist(), new, strict=True):
+        pieces[i] = tok
+    return head + b"".join(pieces)
+
+
+def _source_numbers(body: bytes, T: int, C: int) -> tuple[list[bytes], int, np.ndarray] | None:
+    """The MOTION block split into tokens and the whitespace between them
+    (``pieces``: number ``n`` is ``pieces[first + 2 n]``) with their values
+    ``(T * C,)``; None unless it holds exactly ``T * C`` plain numbers."""
+    if not body.isascii() or b"_" in body:
+        return None
+    pieces = re.split(rb"(\s+)", body)
+    first = 2 if pieces and pieces[0] == b"" else 0
+    tokens = pieces[first::2]
+    if tokens and tokens[-1] == b"":
+        tokens = tokens[:-1]
+    if len(tokens) != T * C:
+        return None
+    try:
+        values = np.array(tokens, dtype=float)
+    except ValueError:
+        return None
+    return pieces, first, values
 
 
 def write_bvh(path: str | os.PathLike, motion: BvhMotion, force: bool = True) -> None:

@@ -783,7 +783,7 @@ def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], so
     if motion.source:
         c3d = _load_ezc3d(motion.source, source_name)
         _carry_point_metadata(c3d, labels, n_frames, residuals, camera_masks)
-        _fit_analogs(c3d, n_frames, motion.rate)
+        point_rate = _fit_analogs(c3d, n_frames, motion.rate)
         _fit_frame_count_parameters(c3d["parameters"], n_frames)
         events = _header_events(motion.source)
     else:
@@ -791,13 +791,14 @@ def _ezc3d_bytes(motion: MarkerMotion, points: np.ndarray, labels: list[str], so
 
         c3d = ezc3d.c3d()
         events = None
+        point_rate = float(motion.rate)
 
     residuals[0][gap.T] = -1.0
     _clean_texts(c3d["parameters"])
     _one_data_start(c3d["parameters"])
     point = c3d["parameters"]["POINT"]
     _set_point_labels(point, labels, _descriptions_by_label(point))
-    _set_parameter(point, "RATE", 4, np.array([float(motion.rate)]))
+    _set_parameter(point, "RATE", 4, np.array([point_rate]))
     if motion.units:
         _set_parameter(point, "UNITS", -1, [motion.units])
     c3d["data"]["points"] = ez_points
@@ -923,7 +924,7 @@ def _carry_point_metadata(
         camera_masks[:, have, :overlap] = src_masks[:, columns[have], :overlap]
 
 
-def _fit_analogs(c3d, n_frames: int, rate: float) -> None:
+def _fit_analogs(c3d, n_frames: int, rate: float) -> float:
     """Fit the analog block (1, channels, T * r) to ``n_frames`` frames at ``rate`` Hz.
 
     Analog samples keep their time: sample ``s`` of the source lies at
@@ -935,6 +936,10 @@ def _fit_analogs(c3d, n_frames: int, rate: float) -> None:
     one sample per frame) becomes ``ANALOG:RATE``, and every channel is
     resampled onto the new sample times by linear interpolation (the last
     sample held past the source's end).
+
+    Returns the point rate to write: ``rate``, or the float32 nearest to it
+    whose analog rate divides back to exactly the samples per frame (see
+    :func:`_divisible_rate`).
     """
     parameters = c3d["parameters"]
     analogs = np.asarray(c3d["data"]["analogs"], dtype=np.float64)  # (1, A, S)
@@ -963,9 +968,34 @@ def _fit_analogs(c3d, n_frames: int, rate: float) -> None:
         analogs = _resample_analogs(analogs, src_per_frame * old_point_rate, per_frame * float(rate), samples)
     c3d["data"]["analogs"] = analogs
     _cut_to_used(parameters["ANALOG"], analogs.shape[1])
+    point_rate = _divisible_rate(float(rate), per_frame) if per_frame and not same_rate else float(rate)
     if per_frame and ("RATE" in parameters["ANALOG"] or not same_rate):
         # ezc3d checks ANALOG:RATE == samples per frame x POINT:RATE
-        _set_parameter(parameters["ANALOG"], "RATE", 4, np.array([per_frame * float(rate)]))
+        _set_parameter(parameters["ANALOG"], "RATE", 4, np.array([per_frame * point_rate]))
+    return point_rate
+
+
+def _divisible_rate(rate: float, per_frame: int) -> float:
+    """A point rate within a few float32 steps of ``rate`` whose analog rate
+    ``per_frame * rate``, stored as float32 like every C3D rate, divides by it
+    to at least ``per_frame``.
+
+    Readers (ezc3d, this module) take the analog samples per frame as the
+    truncated ratio of the two stored rates: at 29.97 Hz with 7 samples per
+    frame, float32(209.79) / float32(29.97) is 6.99999..., read as 6, and the
+    whole frame layout is misread.  A rate whose product rounds up (or is
+    exact) cannot truncate below ``per_frame``.
+    """
+    r32 = np.float32(rate)
+    candidates = [r32]
+    up, down = r32, r32
+    for _ in range(8):
+        up, down = np.nextafter(up, np.float32(np.inf)), np.nextafter(down, np.float32(0))
+        candidates += [up, down]
+    for r in candidates:  # nearest first
+        if float(np.float32(per_frame * float(r))) >= per_frame * float(r):
+            return float(r)
+    return float(r32)
 
 
 def _resample_analogs(analogs: np.ndarray, old_rate: float, new_rate: float, samples: int) -> np.ndarray:

@@ -66,7 +66,7 @@ def bake(
             # source's own numbers (its -0 and its last digit included)
             channels = np.where(np.abs(channels - ref) < _SAME_VALUE, ref, channels)
         text = src.frame_time_text if same_rate else _frame_time_text(frame_time)
-        return BvhMotion(src.skeleton, channels, frame_time, text, src.number_format)
+        return BvhMotion(src.skeleton, channels, frame_time, text, src.number_format, source=src.source)
     src = doc.source
     pts = marker_points(doc, t, layers)
     if ik and layers == "all" and doc.constraints:

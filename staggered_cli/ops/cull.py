@@ -226,10 +226,10 @@ def add_pose(doc: Document, time: float) -> Document:
     """
     half = 0.5 * doc.frame_time  # times as info prints them (4 decimals) must be accepted
     if not np.isfinite(time) or not -half <= time <= doc.duration + half:
-        raise UsageError(f"--add-time must lie within the clip (0 to {doc.duration:.4f} s), got {time}")
+        raise UsageError(f"--add-time must lie within the clip (0 to {doc.seconds(doc.duration)}), got {time:g}")
     time = float(min(max(time, 0.0), doc.duration))
     if np.any(np.abs(doc.pose_t - time) < 1e-9):
-        raise UsageError(f"there is already a pose at {time:.4f} s")
+        raise UsageError(f"there is already a pose at {doc.seconds(time)}")
     k_new = int(np.searchsorted(doc.pose_t, time))
     pose_t = np.insert(doc.pose_t, k_new, time)
     tracks = []
@@ -241,7 +241,9 @@ def add_pose(doc: Document, time: float) -> Document:
         conflict = (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi)
         for k in np.flatnonzero(conflict.any(axis=1)):
             names = ", ".join(tr.names[i] for i in np.flatnonzero(conflict[k]))
-            log.warning("--add-time %.4f s: pose %d's refinements of %s collapse to 0 to make room", time, k, names)
+            log.warning(
+                "--add-time %s: pose %d's refinements of %s collapse to 0 to make room", doc.seconds(time), k, names
+            )
         refine = np.where(conflict, 0.0, refine)
         value = np.where(conflict[..., None], edit, value)
         here = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time))

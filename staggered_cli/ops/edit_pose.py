@@ -112,32 +112,24 @@ def offsets(
 
 
 def _find(doc: Document, name: str, kind: str) -> tuple[int, int]:
-    if doc.kind == "c3d":  # by marker index: a C3D may repeat a label
-        m = doc.source.index(name)  # UsageError for an unknown or ambiguous label
-        for ti, tr in enumerate(doc.tracks):
-            if tr.kind == kind and m in tr.targets:
-                return ti, int(np.flatnonzero(tr.targets == m)[0])
-    key = name if kind == ROTATION else f"{name}.position"
+    j = doc.target_index(name)  # unknown name: UsageError with suggestions
     for ti, tr in enumerate(doc.tracks):
-        if tr.kind == kind and key in tr.names:
-            return ti, tr.names.index(key)
-    targets = list(doc.target_names)
-    if name in targets:
-        what = "rotation channels" if kind == ROTATION else "position channels"
-        raise UsageError(f"{name!r} has no {what} to edit")
-    raise UsageError(f"unknown joint or marker {name!r}")
+        if tr.kind == kind and j in tr.targets:
+            return ti, int(np.flatnonzero(tr.targets == j)[0])
+    what = "rotation channels" if kind == ROTATION else "position channels"
+    raise UsageError(f"{doc.target_names[j]!r} has no {what} to edit")
 
 
 def joint_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[np.ndarray]:
     """Per track, a (V,) mask of the variables an edit may touch (partial poses)."""
     if not joints:
         return [np.ones(tr.n_vars, dtype=bool) for tr in doc.tracks]
-    targets = list(doc.target_names)
     chosen: list[int] = []
     for name in joints:
-        if name not in targets:
-            raise UsageError(f"unknown joint or marker {name!r} in --joints")
-        j = doc.source.index(name) if doc.kind == "c3d" else targets.index(name)
+        try:
+            j = doc.target_index(name)
+        except UsageError as err:
+            raise UsageError(f"--joints: {err.message}") from None
         chosen.extend(doc.source.skeleton.subtree(j).tolist() if subtree and doc.kind == "bvh" else [j])
     return [np.isin(tr.targets, chosen) for tr in doc.tracks]
 

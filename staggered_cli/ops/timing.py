@@ -52,7 +52,7 @@ def select_poses(
         if np.isnan(a) or np.isnan(b) or a > b:
             raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
         if b < 0 or a > doc.duration + 1e-9:
-            raise UsageError(f"--time {a}:{b} lies outside the clip (0 to {doc.duration:.4f} s)")
+            raise UsageError(f"--time {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if interior and K:
         if poses is not None and (mask[0] or mask[-1]):
@@ -105,13 +105,13 @@ def change_refinements(
         many = len(far) > 1
         log.warning(
             "%d extreme knot%s closer to a neighbouring pose than to %s own (the largest: %s of pose %d, "
-            "%+.3f s): the time warp there is steep",
+            "%s): the time warp there is steep",
             len(far),
             "s now lie" if many else " now lies",
             "their" if many else "its",
             name,
             k,
-            r,
+            doc.seconds(r, sign=True),
         )
     changes = {}
     if marker_parents is not None and doc.kind == "c3d" and bool(np.any(marker_parents >= 0)):
@@ -208,7 +208,7 @@ def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
         k, i = (int(x[0]) for x in np.nonzero(bad))
         raise KnotOrderError(
             f"the knots of {tr.names[i]!r} would cross between poses {k} and {k + 1} "
-            f"({doc.pose_t[k]:.4f} s and {doc.pose_t[k + 1]:.4f} s): the timing change is too large "
+            f"({doc.seconds(doc.pose_t[k])} and {doc.seconds(doc.pose_t[k + 1])}): the timing change is too large "
             "(use --clamp to stop short)"
         )
 
@@ -267,7 +267,9 @@ def succession(
     if not np.isfinite(power) or not 0 < power <= MAX_POWER:
         raise UsageError(f"--power must be a positive number up to {MAX_POWER}, got {power}")
     if abs(offset) > _longest_shift(doc):
-        raise UsageError(f"--offset must not exceed {_longest_shift(doc):.4f} s (the clip's length), got {offset}")
+        raise UsageError(
+            f"--offset must not exceed {doc.seconds(_longest_shift(doc))} (the clip's length), got {offset:g}"
+        )
     depth = _depths(doc, joint, chain)
     if poses is None:
         poses = select_poses(doc)
@@ -278,7 +280,7 @@ def succession(
     delta = poses[:, None] * step[None, :]
     parents = None
     if doc.kind == "c3d" and chain:
-        parents = marker_chain.chain_parents(len(doc.target_names), [doc.source.index(n) for n in chain])
+        parents = marker_chain.chain_parents(len(doc.target_names), [doc.target_index(n) for n in chain])
     return change_refinements(doc, delta, clamp=clamp, marker_parents=parents)
 
 
@@ -287,14 +289,14 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
     V = len(doc.variable_names)
     targets = np.concatenate([tr.targets for tr in doc.tracks])
     if chain:
-        names = list(doc.target_names)
         depth_of = {}
         for d, name in enumerate(chain):
-            if name not in names:
-                raise UsageError(f"unknown joint or marker {name!r} in --chain")
             if name in chain[:d]:
                 raise UsageError(f"{name!r} appears twice in --chain")
-            depth_of[doc.source.index(name) if doc.kind == "c3d" else names.index(name)] = d
+            try:
+                depth_of[doc.target_index(name)] = d
+            except UsageError as err:
+                raise UsageError(f"--chain: {err.message}") from None
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
         raise UsageError("succession needs --joint (or --chain for C3D documents)")
@@ -321,7 +323,9 @@ def randomize(
     ``joints`` in the order given, or all markers joined by
     :func:`.marker_chain.rigid_tree`."""
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
-        raise UsageError(f"--tau must be between 0 and {_longest_shift(doc):.4f} s (the clip's length), got {tau}")
+        raise UsageError(
+            f"--tau must be between 0 and {doc.seconds(_longest_shift(doc))} (the clip's length), got {tau:g}"
+        )
     mask = np.concatenate(joint_mask(doc, joints, subtree))  # the same partial poses as edit-pose
     if poses is None:
         poses = select_poses(doc)
@@ -348,7 +352,10 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
         raise UsageError("the first and last pose pin the clip's ends and cannot be retimed")
     if not np.isfinite(new_time) or not doc.pose_t[k - 1] < new_time < doc.pose_t[k + 1]:
         lo, hi = doc.pose_t[k - 1], doc.pose_t[k + 1]
-        raise UsageError(f"pose {k} can move only between its neighbours ({lo:.4f} s and {hi:.4f} s), got {new_time}")
+        raise UsageError(
+            f"pose {k} can move only between its neighbours ({doc.seconds(lo)} and {doc.seconds(hi)}), "
+            f"got {doc.seconds(new_time)}"
+        )
     dt = new_time - doc.pose_t[k]
     tracks = []
     for tr in doc.tracks:
@@ -356,7 +363,7 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
         try:
             tracks.append(with_knot_times(tr, kt))
         except KnotOrderError as exc:
-            raise KnotOrderError(f"moving pose {k} to {new_time:.4f} s: {exc}") from None
+            raise KnotOrderError(f"moving pose {k} to {doc.seconds(new_time)}: {exc}") from None
     pose_t = doc.pose_t.copy()
     pose_t[k] = new_time
     constraints = tuple(c.warped(doc.pose_t, pose_t) for c in doc.constraints)

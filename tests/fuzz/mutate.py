@@ -841,7 +841,8 @@ def _parts(b: DocBase) -> tuple[dict, dict]:
 
 
 def _required_arrays(b: DocBase) -> list[str]:
-    names = [k for k in b.arrays if not k.startswith("signal.")]
+    # signals are for pictures and source.bvh only keeps the file's text (both optional)
+    names = [k for k in b.arrays if not k.startswith("signal.") and k != "source.bvh"]
     return sorted(names)
 
 
