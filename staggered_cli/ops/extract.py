@@ -63,14 +63,24 @@ CONTACT_MERGE = 1.0 / 30.0
 DEFAULT_REFINE_WINDOW = 0.25
 
 
-def _check(name: str, value: float, *, positive: bool = False) -> float:
+#: Largest values of the options that are durations, seconds: far beyond any
+#: use (the defaults are 0.025 to 0.25 s), and they bound the filters' cost.
+MAX_SMOOTHING = 10.0
+MAX_FILTER_WIDTH = 10.0
+MAX_REFINE_WINDOW = 10.0
+MAX_MIN_CONTACT = 60.0
+
+
+def _check(name: str, value: float, *, positive: bool = False, upper: float | None = None) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
         raise UsageError(f"{name} must be a number, got {value!r}") from None
     if not np.isfinite(value) or value < 0 or (positive and value == 0):
         raise UsageError(f"{name} must be a {'positive' if positive else 'non-negative'} number, got {value}")
-    return value
+    if upper is not None and value > upper:
+        raise UsageError(f"{name} must be at most {upper:g} s, got {value:g}")
+    return value + 0.0  # -0.0 -> 0.0
 
 
 def contact_boundaries(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> np.ndarray:
@@ -182,10 +192,12 @@ def extract(
     ------
     UsageError for a bad option or an unknown contact joint.
     """
-    smoothing = _check("--smoothing", signals.DEFAULT_SMOOTHING if smoothing is None else smoothing)
-    filter_width = _check("--filter-width", filter_width)
-    refine_window = _check("--refine-window", refine_window)
-    min_contact = _check("--min-contact", min_contact)
+    smoothing = _check(
+        "--smoothing", signals.DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
+    )
+    filter_width = _check("--filter-width", filter_width, upper=MAX_FILTER_WIDTH)
+    refine_window = _check("--refine-window", refine_window, upper=MAX_REFINE_WINDOW)
+    min_contact = _check("--min-contact", min_contact, upper=MAX_MIN_CONTACT)
     contact_tolerance = _check("--contact-tolerance", contact_tolerance, positive=True)
     significance = _check("--significance", significance)
     T = motion.n_frames

@@ -285,6 +285,7 @@ def randomize(
     """Random offsets: ``r[k,i] += uniform(-tau, tau)`` for the chosen joints
     (all by default; with ``subtree`` their descendants too), reproducible by
     ``seed``."""
+    tau = float(tau) + 0.0  # -0.0 -> 0.0: uniform(0, -0.0) is refused
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
         raise UsageError(f"--tau must be between 0 and {_longest_shift(doc):.4f} s (the clip's length), got {tau}")
     mask = np.concatenate(joint_mask(doc, joints, subtree))  # the same partial poses as edit-pose
