@@ -22,7 +22,9 @@ from .errors import DataError, UsageError
 from .motion import (
     BvhMotion,
     MarkerMotion,
+    frame_time_problem,
     position_columns,
+    rate_problem,
     rotation_columns,
 )
 from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
@@ -279,6 +281,8 @@ def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
     """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
     if fps is not None and (not np.isfinite(fps) or fps <= 0):
         raise UsageError(f"--fps must be a positive number, got {fps}")
+    if fps is not None and rate_problem(fps) is not None:
+        raise UsageError(f"--fps {fps:g} {rate_problem(fps)}")
     if same_rate(doc, fps):
         return doc.frame_times
     n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
@@ -497,6 +501,8 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"manifest is incomplete ({type(exc).__name__}: {str(exc)[:60]})") from None
     need(frames >= 1 and np.isfinite(frame_time) and frame_time > 0, "frames and frame_time must be positive")
+    problem = frame_time_problem(frame_time)
+    need(problem is None, f"frame_time {frame_time:g} {problem}")
     need(kind in ("bvh", "c3d"), f"unknown source kind {str(kind)[:20]!r}")
     try:
         if kind == "bvh":
@@ -570,7 +576,10 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                     check_c3d(raw.tobytes(), "source.c3d")
                 except DataError as exc:
                     need(False, str(exc))
-            source = MarkerMotion(labels, pts, float(c["rate"]), str(c.get("units", "")), raw.tobytes())
+            rate = float(c["rate"])
+            problem = rate_problem(rate) if np.isfinite(rate) else "is not a finite number"
+            need(problem is None, f"c3d rate {rate:g} {problem}")
+            source = MarkerMotion(labels, pts, rate, str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"source description is malformed ({type(exc).__name__}: {str(exc)[:60]})") from None

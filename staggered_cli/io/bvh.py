@@ -17,7 +17,7 @@ import re
 import numpy as np
 
 from ..errors import DataError
-from ..motion import BvhMotion
+from ..motion import BvhMotion, frame_time_problem
 from ..skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
@@ -256,12 +256,15 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
         count = m_frames.group(1)[:20].decode(errors="replace")
         raise DataError(f"line {first_line + 2}: frame count {count!r} is not a whole number") from None
     ft_text = m_time.group(1).decode("ascii", errors="replace")
-    try:
-        frame_time = float(ft_text)
-    except ValueError:
-        frame_time = float("nan")
+    # the grammar of every other number here (float() alone takes '0.01_6667', 'inf', 'nan')
+    if not _NUMBER.match(ft_text):
+        raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]!r} is not a number")
+    frame_time = float(ft_text)
     if not np.isfinite(frame_time) or frame_time <= 0:
         raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]!r} is not a positive number")
+    problem = frame_time_problem(frame_time)
+    if problem is not None:
+        raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]} {problem}")
     if n_frames <= 0:
         raise DataError("has no motion frames (Frames: 0)")
     body = parts[3] if len(parts) > 3 else b""
@@ -373,8 +376,35 @@ def _fmt_number(x: float) -> str:
     return s[:-2] if s.endswith(".0") else s
 
 
+def check_writable(motion: BvhMotion) -> None:
+    """Refuse to write a BVH that :func:`read_bvh` would refuse: numbers
+    beyond :data:`MAX_MAGNITUDE` (or not finite), a frame time out of range
+    or not in the reader's number grammar.  Raises ``DataError``."""
+    sk = motion.skeleton
+    for what, values in (("joint offset", sk.offsets), ("End Site offset", sk.end_offsets)):
+        if values.size and not np.all(np.abs(values) <= MAX_MAGNITUDE):
+            raise DataError(f"cannot write the BVH: a {what} is beyond ±{MAX_MAGNITUDE:g} (the BVH reader's limit)")
+    ch = motion.channels
+    if ch.size and not np.all(np.abs(ch) <= MAX_MAGNITUDE):
+        bad = int(np.flatnonzero(~(np.abs(ch.ravel()) <= MAX_MAGNITUDE))[0])
+        frame, col = divmod(bad, ch.shape[1])
+        raise DataError(
+            f"cannot write the BVH: frame {frame}, channel {col} would be {ch.ravel()[bad]:g}, "
+            f"beyond ±{MAX_MAGNITUDE:g} (the BVH reader's limit)"
+        )
+    text = motion.frame_time_text or _fmt_number(motion.frame_time)
+    problem = "is not a number" if not _NUMBER.match(text) else frame_time_problem(float(text))
+    if problem is not None:
+        raise DataError(f"cannot write the BVH: frame time {text[:20]} {problem}")
+
+
 def bvh_bytes(motion: BvhMotion) -> bytes:
-    """The BVH file of ``motion`` as bytes (LF line endings)."""
+    """The BVH file of ``motion`` as bytes (LF line endings).
+
+    Raises ``DataError`` for a motion the reader would refuse
+    (:func:`check_writable`): a command never writes what it cannot read back.
+    """
+    check_writable(motion)
     sk = motion.skeleton
     out: list[str] = ["HIERARCHY"]
     ends: dict[int, list[np.ndarray]] = {}

@@ -49,8 +49,8 @@ import numpy as np
 from .. import contacts as contact_detection
 from .. import signals
 from ..document import Document, from_motion
-from ..errors import UsageError
-from ..motion import BvhMotion, MarkerMotion
+from ..errors import DataError, UsageError
+from ..motion import BvhMotion, MarkerMotion, rate_problem
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -202,6 +202,9 @@ def extract(
     significance = _check("--significance", significance)
     T = motion.n_frames
     rate = float(motion.rate)
+    problem = rate_problem(rate) if np.isfinite(rate) else "is not a finite number"
+    if problem is not None:
+        raise DataError(f"frame rate {rate:g} Hz {problem}")
 
     ev = signals.local_evidence(motion, smoothing)
     joints = contact_detection.contact_joints(motion, contact_joints)
