@@ -504,6 +504,11 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     problem = frame_time_problem(frame_time)
     need(problem is None, f"frame_time {frame_time:g} {problem}")
     need(kind in ("bvh", "c3d"), f"unknown source kind {str(kind)[:20]!r}")
+    sha = src_info.get("sha256", "") if isinstance(src_info, dict) else None
+    need(
+        isinstance(sha, str) and (sha == "" or re.fullmatch(r"[0-9a-f]{64}", sha) is not None),
+        "source sha256 is not a SHA-256 digest (64 lower-case hex digits)",
+    )
     try:
         if kind == "bvh":
             b = manifest["bvh"]
@@ -579,6 +584,12 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             rate = float(c["rate"])
             problem = rate_problem(rate) if np.isfinite(rate) else "is not a finite number"
             need(problem is None, f"c3d rate {rate:g} {problem}")
+            sha = src_info.get("sha256", "")
+            if raw.size and sha:  # the embedded file is the source the manifest names
+                need(
+                    hashlib.sha256(raw.tobytes()).hexdigest() == sha,
+                    "source.c3d does not match the source's sha256 in the manifest (altered or corrupted)",
+                )
             source = MarkerMotion(labels, pts, rate, str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
     except (KeyError, TypeError, ValueError, OverflowError) as exc:

@@ -159,19 +159,43 @@ def _parse_hierarchy(header: str) -> Skeleton:
             raise DataError(f"line {ln}: joint without a name")
         return " ".join(parts)
 
-    def body(j: int) -> None:
+    declared: set[int] = set()  # joints whose CHANNELS line has been read
+
+    def open_joint(parent: int, ln: int) -> int:
+        """Read a joint's name, '{' and OFFSET; return its index."""
+        name = joint_name(ln)
+        if name in seen:
+            raise DataError(f"line {ln}: duplicate joint name {name!r}")
+        if len(names) >= MAX_JOINTS:
+            raise DataError(f"more than {MAX_JOINTS} joints: not a plausible skeleton")
+        seen.add(name)
+        names.append(name)
+        parents.append(parent)
+        channels.append(())
         take("{")
-        tok, ln = take("OFFSET")
+        _, ln = take("OFFSET")
         offsets.append([number(ln) for _ in range(3)])
-        ch: tuple[str, ...] = ()
-        while True:
+        return len(names) - 1
+
+    seen: set[str] = set()
+    # an explicit stack of the open joints: a chain of MAX_JOINTS joints
+    # nests that deep, more than Python's recursion allows
+    while nxt is not None:
+        tok, ln = take()
+        if tok.upper() != "ROOT":
+            raise DataError(f"line {ln}: expected ROOT, found {tok[:40]!r}")
+        stack = [open_joint(-1, ln)]
+        while stack:
+            j = stack[-1]
             tok, ln = take()
             key = tok.upper()
             if key == "CHANNELS":
-                if ch:
+                if j in declared:
                     raise DataError(f"line {ln}: second CHANNELS line for joint {names[j]!r}")
+                declared.add(j)
                 ntok, _ = take()
-                if not ntok.isdigit() or int(ntok) > 6:
+                # isascii: str.isdigit() also accepts '³' and other digits int() refuses
+                if not (ntok.isascii() and ntok.isdigit()) or int(ntok) > 6:
                     raise DataError(f"line {ln}: bad channel count {ntok[:20]!r}")
                 ch = tuple(take()[0] for _ in range(int(ntok)))
                 for c in ch:
@@ -181,7 +205,7 @@ def _parse_hierarchy(header: str) -> Skeleton:
                     raise DataError(f"line {ln}: repeated channel for joint {names[j]!r}")
                 channels[j] = ch
             elif key == "JOINT":
-                child(j, ln)
+                stack.append(open_joint(j, ln))
             elif key == "END":
                 take("Site")
                 take("{")
@@ -190,36 +214,9 @@ def _parse_hierarchy(header: str) -> Skeleton:
                 end_offsets.append([number(ln2) for _ in range(3)])
                 take("}")
             elif key == "}":
-                return
+                stack.pop()
             else:
                 raise DataError(f"line {ln}: unexpected {tok[:40]!r} in joint {names[j]!r}")
-
-    def child(parent: int, ln: int) -> None:
-        name = joint_name(ln)
-        if name in names:
-            raise DataError(f"line {ln}: duplicate joint name {name!r}")
-        if len(names) >= MAX_JOINTS:
-            raise DataError(f"more than {MAX_JOINTS} joints: not a plausible skeleton")
-        names.append(name)
-        parents.append(parent)
-        channels.append(())
-        body(len(names) - 1)
-
-    # iterative driver for the roots; the recursion depth is the hierarchy depth
-    import sys
-
-    limit = sys.getrecursionlimit()
-    sys.setrecursionlimit(max(limit, 3 * MAX_JOINTS + 100))
-    try:
-        while nxt is not None:
-            tok, ln = take()
-            if tok.upper() != "ROOT":
-                raise DataError(f"line {ln}: expected ROOT, found {tok[:40]!r}")
-            child(-1, ln)
-    except RecursionError:
-        raise DataError("HIERARCHY nests too deeply") from None
-    finally:
-        sys.setrecursionlimit(limit)
     if not names:
         raise DataError("HIERARCHY has no ROOT joint")
     return Skeleton(
@@ -414,15 +411,22 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     for j, p in enumerate(sk.parents):
         children.setdefault(int(p), []).append(j)
 
-    def emit(j: int, depth: int) -> None:
+    # depth first with an explicit stack (a chain of 10^4 joints is as deep
+    # as it is long): ("open", j, depth) writes joint j and queues its
+    # children, then ("close", j, depth) writes its End Sites and brace
+    stack: list[tuple[bool, int, int]] = [(True, r, 0) for r in reversed(children.get(-1, []))]
+    while stack:
+        opening, j, depth = stack.pop()
         ind = "\t" * depth
-        out.append(f"{ind}{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {sk.names[j]}")
-        out.append(f"{ind}{{")
-        out.append(f"{ind}\tOFFSET {' '.join(_fmt_number(v) for v in sk.offsets[j])}")
-        if sk.channels[j]:
-            out.append(f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
-        for c in children.get(j, []):
-            emit(c, depth + 1)
+        if opening:
+            out.append(f"{ind}{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {sk.names[j]}")
+            out.append(f"{ind}{{")
+            out.append(f"{ind}\tOFFSET {' '.join(_fmt_number(v) for v in sk.offsets[j])}")
+            if sk.channels[j]:
+                out.append(f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
+            stack.append((False, j, depth))
+            stack.extend((True, c, depth + 1) for c in reversed(children.get(j, [])))
+            continue
         for o in ends.get(j, []):
             out.extend(
                 [
@@ -434,8 +438,6 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
             )
         out.append(f"{ind}}}")
 
-    for r in children.get(-1, []):
-        emit(r, 0)
     ch = motion.channels
     out += [
         "MOTION",
