@@ -457,7 +457,7 @@ def test_a_clip_beyond_the_extract_limit_is_refused_up_front(tmp_path):
             f"limit of {MAX_EXTRACT_VALUES:,} values (frames x channels): cut it into parts"
         ]
         size_mb = path.stat().st_size / 2**20
-        assert seconds < 30 and rss < size_mb + 250, (seconds, rss)  # the bytes, not their values
+        assert seconds < 30 and rss < size_mb + 400, (seconds, rss)  # the bytes, not their values (111 MB here)
         # reading it all takes the bytes, the values and a chunk, not copies
         # of the whole text (before: 10 times the file's size)
         r, rss = peak_rss(READ, str(path))

@@ -108,15 +108,15 @@ def read_bytes(path: str, limit: int = MAX_INPUT_BYTES, probe=None, probe_bytes:
             raise DataError(_too_big(st.st_size, limit), source=name)
         with open(path, "rb") as f:
             if stat.S_ISREG(st.st_mode):
-                # one read into one buffer of the file's size: no chunks to join
+                if probe is not None and st.st_size >= probe_bytes:
+                    try:  # the head alone first: a file to refuse is not read to its end
+                        probe(os.pread(f.fileno(), probe_bytes, 0))
+                    except StaggeredError as err:
+                        raise err.with_source(name) from None
+                # then one read into one buffer of the file's size: no chunks to join
                 data = f.read()
                 if len(data) > limit:  # it grew since the stat
                     raise DataError(_too_big(len(data), limit), source=name)
-                if probe is not None and len(data) >= probe_bytes:
-                    try:
-                        probe(data[:probe_bytes])
-                    except StaggeredError as err:
-                        raise err.with_source(name) from None
                 return data, name
             # not only regular files: FIFOs and process substitution too
             return _read_stream(f, limit, name, probe, probe_bytes), name
