@@ -325,6 +325,14 @@ def test_closed_standard_output(args):
 # --- signals and pipes -------------------------------------------------------------
 
 
+def _catches_sigterm(pid: int) -> bool:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigterm_is_handled_like_ctrl_c(tmp_path):
     # three copies of JUMPS' motion: about 8 s of extraction
     data = mocap(JUMPS).read_bytes()
@@ -337,7 +345,10 @@ def test_sigterm_is_handled_like_ctrl_c(tmp_path):
     proc = subprocess.Popen(
         [str(STAGGERED), "extract", str(path), "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE
     )
-    time.sleep(2.5)
+    deadline = time.monotonic() + 60
+    while not _catches_sigterm(proc.pid) and time.monotonic() < deadline:  # started, handler in place
+        time.sleep(0.05)
+    time.sleep(1.0)  # now reading or extracting (about 8 s)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err
