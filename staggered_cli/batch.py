@@ -290,15 +290,162 @@ def _remove_stale(path: str) -> None:
         pass  # nothing there (the usual case), or not removable: the failure itself is what gets reported
 
 
-def _init_worker(level: int) -> None:
+#: Test hook, read by batch workers only: ``NAME=HOW[;NAME=HOW...]`` makes the
+#: worker that draws the file named NAME (its path under IN_DIR, or its base
+#: name) die before it reads it, the way a crash in a native library would:
+#: HOW is ``exit`` (``os._exit(3)``), ``segv`` (a real segmentation fault),
+#: ``kill`` (SIGKILL, as the out-of-memory killer sends) or ``hang`` (sleeps
+#: until killed).  The tests use it to check that a dead worker fails its
+#: file only; nothing else sets it.
+FAULT_ENV = "STAGGERED_TEST_WORKER_FAULT"
+
+#: Seconds a worker is given to end (and remove its temporary file) after
+#: SIGTERM before it is killed.
+_GRACE = 3.0
+
+
+def _inject_fault(rel: str) -> None:
+    spec = os.environ.get(FAULT_ENV, "")
+    for item in filter(None, spec.split(";")):
+        name, _, how = item.partition("=")
+        if name not in (rel, os.path.basename(rel)):
+            continue
+        if how == "exit":
+            os._exit(3)
+        elif how == "segv":
+            import ctypes
+
+            ctypes.string_at(0)  # reads address 0: SIGSEGV
+        elif how == "kill":
+            import signal
+
+            os.kill(os.getpid(), signal.SIGKILL)
+        elif how == "hang":
+            while True:
+                time.sleep(1.0)
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """End this worker when the batch process ends, however it ends.
+
+    On Linux the kernel sends SIGKILL on the parent's death
+    (``prctl(PR_SET_PDEATHSIG)``); elsewhere, and for a parent that died
+    before the call, a thread watches the parent's pid.  An idle worker also
+    ends when its pipe closes.
+    """
+    import signal
+    import threading
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass  # no prctl: the watcher thread below still ends us
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _worker_main(conn, parent_pid: int, level: int) -> None:
+    """A worker process: run the jobs sent on ``conn`` one by one, send back each Result."""
+    import signal
+
+    _die_with_parent(parent_pid)
+    # Ctrl-C reaches the whole process group: the parent handles it and ends
+    # the workers.  SIGTERM (from the parent) unwinds, so that a bake's
+    # temporary file is removed.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def unwind(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, unwind)
     from .cli.main import configure_logging, log
 
     configure_logging(0, 0)
     log.setLevel(level)
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return  # the parent is gone
+            if msg is None:
+                return
+            job, steps = msg
+            _inject_fault(job.rel)
+            conn.send(run_file(job, steps))
+    except KeyboardInterrupt:
+        return
 
 
-def _worker(job: Job, steps: Sequence[Step]) -> Result:
-    return run_file(job, steps)
+def _death(exitcode: int | None) -> str:
+    """Why a worker ended, in a few words."""
+    import signal
+
+    if exitcode is not None and exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        native = ": a crash in native code"
+        hint = {"SIGKILL": ": out of memory?", "SIGSEGV": native, "SIGBUS": native, "SIGABRT": native}
+        return f"worker process died ({name}{hint.get(name, '')})"
+    return f"worker process died (exit code {exitcode})"
+
+
+class _Worker:
+    """One worker process, the pipe to it and the job it is running."""
+
+    def __init__(self, ctx, level: int):
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child, os.getpid(), level), daemon=True)
+        self.proc.start()
+        child.close()
+        self.job: Job | None = None
+        self.start = 0.0
+
+    def run(self, job: Job, steps: tuple[Step, ...]) -> None:
+        self.job, self.start = job, time.perf_counter()
+        try:
+            self.conn.send((job, steps))
+        except OSError:
+            pass  # it died already: its sentinel reports it
+
+    def stop(self) -> None:
+        """Ask an idle worker to end."""
+        try:
+            self.conn.send(None)
+        except OSError:
+            pass  # already gone
+        self.conn.close()
+        self.proc.join(_GRACE)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+
+
+def _end_all(pool: Sequence[_Worker]) -> None:
+    """SIGTERM every worker, give it time to clean up, then SIGKILL."""
+    for w in pool:
+        if w.proc.is_alive():
+            w.proc.terminate()
+    deadline = time.monotonic() + _GRACE
+    for w in pool:
+        w.proc.join(max(0.0, deadline - time.monotonic()))
+        if w.proc.is_alive():
+            w.proc.kill()
+            w.proc.join()
+        w.conn.close()
 
 
 def run_batch(
@@ -307,52 +454,76 @@ def run_batch(
     workers: int,
     on_result: Callable[[Result], None] | None = None,
 ) -> list[Result]:
-    """Process ``jobs`` with ``workers`` processes (in this process when 1).
+    """Process ``jobs`` with ``workers`` processes (at least one, even for
+    one job: a crash in native code then fails one file, not the batch).
 
     The largest files are started first, so that the last worker to finish
-    is not the one that drew the longest clip at the end.  ``on_result`` is
-    called in this process as each file finishes.
+    is not the one that drew the longest clip at the end.  A worker that
+    dies (a segmentation fault, the out-of-memory killer) fails the file it
+    was running with a one-line reason, and a new worker takes its place.
+    ``on_result`` is called in this process as each file finishes.
     """
     import logging
+    import multiprocessing
+    from collections import deque
+    from multiprocessing.connection import wait
 
-    order = sorted(jobs, key=lambda j: -_size(j.src))
+    order = deque(sorted(jobs, key=lambda j: -_size(j.src)))
     results: list[Result] = []
+    if not order:
+        return results
+    frozen = tuple(steps)
 
     def done(result: Result) -> None:
         results.append(result)
         if on_result is not None:
             on_result(result)
 
-    workers = max(1, min(workers, len(order)))
-    if workers == 1:
-        for job in order:
-            done(run_file(job, steps))
-        return results
-
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
     level = logging.getLogger("staggered_cli").getEffectiveLevel()
     # spawn: no fork of a process that may run threads (the progress bar's monitor)
-    pool = ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_init_worker,
-        initargs=(level,),
-    )
+    ctx = multiprocessing.get_context("spawn")
+    pool: list[_Worker] = []
     try:
-        futures = {pool.submit(_worker, job, tuple(steps)): job for job in order}
-        for future in as_completed(futures):
-            job = futures[future]
-            try:
-                done(future.result())
-            except BrokenProcessPool:
-                done(Result(job.rel, FAILED, None, "worker process died (out of memory?)"))
+        for _ in range(max(1, min(workers, len(order)))):
+            w = _Worker(ctx, level)
+            pool.append(w)
+            w.run(order.popleft(), frozen)
+        while any(w.job is not None for w in pool):
+            busy = [w for w in pool if w.job is not None]
+            wait([w.conn for w in busy] + [w.proc.sentinel for w in busy])
+            for i, w in enumerate(pool):
+                if w.job is None:
+                    continue
+                result = None
+                if w.conn.poll():
+                    try:
+                        result = w.conn.recv()
+                    except (EOFError, OSError):
+                        result = None  # died while sending: reported below
+                elif w.proc.is_alive():
+                    continue
+                if result is not None:
+                    done(result)
+                    w.job = None
+                else:
+                    job = w.job
+                    w.proc.join()
+                    w.conn.close()
+                    _remove_stale(job.dst)
+                    from .io.files import remove_stale_temporaries
+
+                    remove_stale_temporaries(job.dst)
+                    done(Result(job.rel, FAILED, time.perf_counter() - w.start, _death(w.proc.exitcode)))
+                    w = pool[i] = _Worker(ctx, level) if order else w
+                    w.job = None
+                if order and w.job is None and w.proc.is_alive():
+                    w.run(order.popleft(), frozen)
     except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)
+        _end_all(pool)
         raise
-    pool.shutdown(wait=True)
+    for w in pool:
+        if w.proc.is_alive():
+            w.stop()
     return results
 
 

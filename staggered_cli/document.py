@@ -23,7 +23,9 @@ from .errors import DataError, UsageError
 from .motion import (
     BvhMotion,
     MarkerMotion,
+    frame_time_problem,
     position_columns,
+    rate_problem,
     rotation_columns,
 )
 from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
@@ -314,6 +316,8 @@ def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
     """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
     if fps is not None and (not np.isfinite(fps) or fps <= 0):
         raise UsageError(f"--fps must be a positive number, got {fps}")
+    if fps is not None and rate_problem(fps) is not None:
+        raise UsageError(f"--fps {fps:g} {rate_problem(fps)}")
     if same_rate(doc, fps):
         return doc.frame_times
     n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
@@ -534,7 +538,14 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"manifest is incomplete ({type(exc).__name__}: {str(exc)[:60]})") from None
     need(frames >= 1 and np.isfinite(frame_time) and frame_time > 0, "frames and frame_time must be positive")
+    problem = frame_time_problem(frame_time)
+    need(problem is None, f"frame_time {frame_time:g} {problem}")
     need(kind in ("bvh", "c3d"), f"unknown source kind {str(kind)[:20]!r}")
+    sha = src_info.get("sha256", "") if isinstance(src_info, dict) else None
+    need(
+        isinstance(sha, str) and (sha == "" or re.fullmatch(r"[0-9a-f]{64}", sha) is not None),
+        "source sha256 is not a SHA-256 digest (64 lower-case hex digits)",
+    )
     try:
         if kind == "bvh":
             b = manifest["bvh"]
@@ -617,6 +628,12 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
 
             rate = float(c["rate"])
             need(rate_ok(rate), f"the c3d rate {rate:g} Hz is outside {RATE_LIMITS}")
+            sha = src_info.get("sha256", "")
+            if raw.size and sha:  # the embedded file is the source the manifest names
+                need(
+                    hashlib.sha256(raw.tobytes()).hexdigest() == sha,
+                    "source.c3d does not match the source's sha256 in the manifest (altered or corrupted)",
+                )
             source = MarkerMotion(labels, pts, rate, str(c.get("units", "")), raw.tobytes())
             need(abs(1.0 / source.rate - frame_time) < 1e-9, "frame_time disagrees with the c3d rate")
     except (KeyError, TypeError, ValueError, OverflowError) as exc:

@@ -158,6 +158,34 @@ class MarkerMotion:
         return size if size > 0 else 1.0
 
 
+#: Frame rates a clip may have, Hz (frame times 1e-4 to 1 s).  No capture
+#: lies outside; a frame time of 1e-30 or 1e308 is a corrupt file, and the
+#: cost of the signals (smoothing, filters) is bounded by the data only
+#: within these.
+MIN_RATE = 1.0
+MAX_RATE = 10_000.0
+MIN_FRAME_TIME = 1.0 / MAX_RATE
+MAX_FRAME_TIME = 1.0 / MIN_RATE
+
+
+def frame_time_problem(frame_time: float) -> str | None:
+    """None when ``frame_time`` (seconds) is within the limits, else the reason
+    (a phrase to follow the value)."""
+    if MIN_FRAME_TIME * (1 - 1e-9) <= frame_time <= MAX_FRAME_TIME * (1 + 1e-9):
+        return None
+    return (
+        f"is out of range: frame times go from {MIN_FRAME_TIME:g} to {MAX_FRAME_TIME:g} s "
+        f"({MIN_RATE:g} Hz to {MAX_RATE:g} Hz)"
+    )
+
+
+def rate_problem(rate: float) -> str | None:
+    """None when ``rate`` (Hz) is within the limits, else the reason."""
+    if MIN_RATE * (1 - 1e-9) <= rate <= MAX_RATE * (1 + 1e-9):
+        return None
+    return f"is out of range: frame rates go from {MIN_RATE:g} Hz to {MAX_RATE:g} Hz"
+
+
 def nominal_rate(frame_time: float) -> float:
     """Frame rate in Hz, snapped to a whole number when the written frame time
     is a rounded reciprocal of one (``.0083333`` -> 120, ``0.016667`` -> 60)."""

@@ -193,6 +193,12 @@ def smoothing_iterations(duration: float, rate: float) -> tuple[int, float]:
     return full, (rest / 2.0 if rest > 1e-9 else 0.0)
 
 
+#: Up to this many iterations the smoothing runs them one by one (120 Hz at
+#: the default 0.025 s takes 18); beyond, the same operator is applied in one
+#: step in the cosine basis, so the cost does not grow with (σ · rate)².
+MAX_EXPLICIT_ITERATIONS = 32
+
+
 def laplacian_smooth(x: np.ndarray, duration: float, rate: float, breaks: np.ndarray | None = None) -> np.ndarray:
     """Iterated Laplacian smoothing along the first axis.
 
@@ -207,19 +213,55 @@ def laplacian_smooth(x: np.ndarray, duration: float, rate: float, breaks: np.nda
     Returns
     -------
     (T, ...) a new array.
+
+    Notes
+    -----
+    One iteration is ``x += λ L x`` with ``L`` the Laplacian of the chain of
+    frames cut at the breaks (no flux through a break or an end).  Between
+    two breaks ``L``'s eigenvectors are the DCT-II basis, with eigenvalues
+    ``2 - 2 cos(π k / n)``, so ``n`` iterations are one multiplication by
+    ``(1 - λ μ_k)^n`` there: the result of every iteration count in
+    O(T log T).  Small counts run the iterations themselves (bit for bit the
+    explicit scheme); both agree to about 1e-13.
     """
     x = np.array(x, dtype=float, copy=True)
     T = x.shape[0]
     if T < 2:
         return x
     full, last = smoothing_iterations(duration, rate)
-    cond = np.ones(T - 1) if breaks is None else (~np.asarray(breaks, dtype=bool)).astype(float)
-    cond = cond.reshape((T - 1,) + (1,) * (x.ndim - 1))
+    cuts = np.zeros(T - 1, dtype=bool) if breaks is None else np.asarray(breaks, dtype=bool).reshape(T - 1)
+    if full + (last > 0) > MAX_EXPLICIT_ITERATIONS:
+        return _smooth_spectral(x, full, last, cuts)
+    cond = (~cuts).astype(float).reshape((T - 1,) + (1,) * (x.ndim - 1))
     for lam in [_LAMBDA] * full + ([last] if last > 0 else []):
         flux = cond * np.diff(x, axis=0)  # (T-1, ...)
         x[:-1] += lam * flux
         x[1:] -= lam * flux
     return x
+
+
+def _smooth_spectral(x: np.ndarray, full: int, last: float, cuts: np.ndarray) -> np.ndarray:
+    """``full`` iterations of step λ and one of step ``last``, segment by
+    segment between the ``cuts``, in the cosine basis (see
+    :func:`laplacian_smooth`).  Segments of one length go through one FFT."""
+    T = x.shape[0]
+    starts = np.concatenate([[0], np.flatnonzero(cuts) + 1])
+    lengths = np.diff(np.append(starts, T))
+    out = x.copy()
+    scale = np.abs(x).reshape(T, -1).max(axis=0).reshape(x.shape[1:])
+    for n in np.unique(lengths[lengths > 1]):
+        first = starts[lengths == n]
+        idx = first[:, None] + np.arange(n)  # (S, n)
+        seg = x[idx]  # (S, n, ...)
+        # the even extension (x, reversed x): its DFT is the DCT-II of x
+        spec = np.fft.rfft(np.concatenate([seg, seg[:, ::-1]], axis=1), axis=1)
+        mu = 2.0 - 2.0 * np.cos(np.pi * np.arange(n + 1) / n)
+        gain = np.power(np.clip(1.0 - _LAMBDA * mu, 0.0, None), full) * (1.0 - last * mu)
+        spec *= gain.reshape((1, n + 1) + (1,) * (x.ndim - 1))
+        out[idx] = np.fft.irfft(spec, n=2 * n, axis=1)[:, :n]
+    # rounding leaves ~1e-16 of noise where the explicit scheme gives exact
+    # zeros (or Gaussian tails below it): it would make spurious local maxima
+    return np.where(np.abs(out) <= 1e-14 * scale, 0.0, out)
 
 
 def tent_filter(x: np.ndarray, width: float, rate: float) -> np.ndarray:
@@ -233,6 +275,7 @@ def tent_filter(x: np.ndarray, width: float, rate: float) -> np.ndarray:
     T = x.shape[0]
     half = 0.5 * width * rate  # frames
     r = int(np.ceil(half)) - 1 if half > 0 else 0
+    r = min(r, T - 1)  # taps farther than the clip is long touch no sample
     if r < 1 or T < 2:
         return x.copy()
     k = np.arange(-r, r + 1)

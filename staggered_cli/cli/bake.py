@@ -36,6 +36,11 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
     rate = finite(fps, "--fps") if fps is not None else None
     if rate is not None and rate <= 0:
         raise click.BadParameter(f"must be positive, got {fps}", param_hint="--fps")
+    if rate is not None:
+        from ..motion import rate_problem
+
+        if rate_problem(rate) is not None:
+            raise click.BadParameter(f"{fps} {rate_problem(rate)}", param_hint="--fps")
     blend = finite(ik_blend, "--ik-blend")
     if blend < 0:
         raise click.BadParameter(f"must not be negative, got {ik_blend}", param_hint="--ik-blend")

@@ -160,6 +160,12 @@ def constraints(
     for value, what in ((min_contact, "--min-contact"), (contact_tolerance, "--contact-tolerance")):
         if value is not None and not math.isfinite(value):
             raise click.BadParameter(f"must be a finite number, got {value}", param_hint=what)
+    from ..ops.extract import MAX_MIN_CONTACT
+
+    if min_contact is not None and min_contact > MAX_MIN_CONTACT:
+        raise click.BadParameter(
+            f"must be at most {MAX_MIN_CONTACT:g} s, got {min_contact:g}", param_hint="--min-contact"
+        )
     spans = [parse_span(a) for a in adds]
     if editing:
         check_output(output, force)

@@ -37,8 +37,10 @@ def _read_motion(path: str):
 
             return read_c3d(path, data=data, name=name), data
         from ..io.bvh import read_bvh
+        from ..ops.extract import MAX_EXTRACT_VALUES
 
-        return read_bvh(path, data=data, name=name), data
+        # refused from its header, before its values are parsed
+        return read_bvh(path, data=data, name=name, max_values=MAX_EXTRACT_VALUES), data
     except StaggeredError as err:
         raise err.with_source(name) from None
 

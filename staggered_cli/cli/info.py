@@ -133,6 +133,20 @@ def format_table(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _json_safe(value: Any) -> Any:
+    """``value`` with every infinite or NaN number replaced by null: JSON
+    has no such numbers (``json.dumps`` would print ``Infinity``)."""
+    import math
+
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 @click.command("info")
 @input_argument
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (sorted keys) instead of a table.")
@@ -146,6 +160,7 @@ def info(input_path: str, as_json: bool) -> None:
     name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
     summary = summarize(obj, name, "<stdin>" if input_path == "-" else input_path)
     if as_json:
-        click.echo(json.dumps(summary, sort_keys=True, indent=1, ensure_ascii=False))
+        text = json.dumps(_json_safe(summary), sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False)
+        click.echo(text)
     else:
         click.echo(format_table(summary))

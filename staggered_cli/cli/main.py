@@ -6,9 +6,13 @@ Error path (the only place that turns exceptions into exit codes):
 * :class:`~staggered_cli.errors.StaggeredError` -> ``staggered: <message>``
   on stderr, exit code ``err.exit_code`` (1 for data errors, 2 for usage);
 * click's own usage errors -> click's message, exit 2;
-* ``KeyboardInterrupt`` -> exit 130;
+* ``KeyboardInterrupt`` (Ctrl-C) -> one line, exit 130; SIGTERM is handled
+  the same way (one line, exit 143 = 128 + SIGTERM): the write in progress
+  removes its temporary file;
 * a closed stdout pipe (``BrokenPipeError``) -> exit 141 (128 + SIGPIPE)
-  without a message, as other Unix tools do;
+  without a message, as other Unix tools do, help text included;
+* standard output closed (``>&-``) -> one line, exit 1, when a command
+  writes to it;
 * anything else is a bug: a one-line ``internal error`` message, exit 1.
 
 ``--debug`` lets the exception through so that Python prints the traceback.
@@ -24,6 +28,7 @@ import NumPy, SciPy or Matplotlib.  Completion uses click's mechanism::
 from __future__ import annotations
 
 import importlib
+import io
 import logging
 import os
 import sys
@@ -52,6 +57,7 @@ COMMANDS: dict[str, str] = {
 }
 
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
 EXIT_BROKEN_PIPE = 141
 
 log = logging.getLogger("staggered_cli")
@@ -92,6 +98,44 @@ def _silence_stdout() -> None:
         pass  # stdout is not a real file (tests): nothing will be flushed into a pipe
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is, so that it unwinds like Ctrl-C."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated
+
+
+def _handle_sigterm() -> None:
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _on_sigterm)
+
+
+class StdoutClosed(StaggeredError):
+    """Writing to a standard output that the shell closed."""
+
+
+class _ClosedStdout(io.TextIOBase):
+    """Standard output when the shell closed it (``>&-``): writing is an error."""
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        raise StdoutClosed("standard output is closed: nothing can be written to it", source="<stdout>")
+
+
+def _interrupted(err: KeyboardInterrupt) -> int:
+    if isinstance(err, Terminated):
+        click.echo(f"{PROG}: terminated", err=True)
+        return EXIT_TERMINATED
+    click.echo(f"\n{PROG}: interrupted", err=True)
+    return EXIT_INTERRUPTED
+
+
 class StaggeredGroup(LazyGroup):
     """The root group: maps every exception to a message and an exit code."""
 
@@ -99,6 +143,9 @@ class StaggeredGroup(LazyGroup):
         """Like click's, but click's own usage errors are one line too."""
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        _handle_sigterm()
+        if sys.stdout is None:
+            sys.stdout = _ClosedStdout()
         try:
             rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         except click.exceptions.NoArgsIsHelpError as err:
@@ -115,7 +162,21 @@ class StaggeredGroup(LazyGroup):
         except click.exceptions.Abort:
             click.echo(f"{PROG}: aborted", err=True)
             sys.exit(1)
+        except KeyboardInterrupt as err:  # before or after a command ran
+            sys.exit(_interrupted(err))
+        except StdoutClosed as err:  # while writing help
+            click.echo(f"{PROG}: {_one_line(str(err))}", err=True)
+            sys.exit(err.exit_code)
         sys.exit(rv if isinstance(rv, int) else 0)
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        # --help and --version print while the arguments are parsed: click
+        # would turn a closed pipe there into exit 1
+        try:
+            return super().make_context(info_name, args, parent, **extra)
+        except BrokenPipeError:
+            _silence_stdout()
+            sys.exit(EXIT_BROKEN_PIPE)
 
     def invoke(self, ctx: click.Context):
         debug = bool(ctx.params.get("debug"))
@@ -135,9 +196,8 @@ class StaggeredGroup(LazyGroup):
                 err.with_source(display_name(ctx.meta[INPUT_KEY]))  # the file the problem is about
             click.echo(f"{PROG}: {_one_line(str(err))}", err=True)
             ctx.exit(err.exit_code)
-        except KeyboardInterrupt:
-            click.echo(f"\n{PROG}: interrupted", err=True)
-            ctx.exit(EXIT_INTERRUPTED)
+        except KeyboardInterrupt as err:
+            ctx.exit(_interrupted(err))
         except BrokenPipeError:
             _silence_stdout()
             ctx.exit(EXIT_BROKEN_PIPE)

@@ -19,7 +19,7 @@ import re
 import numpy as np
 
 from ..errors import DataError
-from ..motion import BvhMotion
+from ..motion import BvhMotion, frame_time_problem
 from ..skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
@@ -31,7 +31,9 @@ _KNOWN_CHANNELS = set(POSITION_CHANNELS) | set(ROTATION_CHANNELS)
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
-def read_bvh(path: str | os.PathLike, data: bytes | None = None, name: str | None = None) -> BvhMotion:
+def read_bvh(
+    path: str | os.PathLike, data: bytes | None = None, name: str | None = None, max_values: int | None = None
+) -> BvhMotion:
     """Read a BVH file (or its bytes) into a :class:`BvhMotion`.
 
     Parameters
@@ -39,6 +41,8 @@ def read_bvh(path: str | os.PathLike, data: bytes | None = None, name: str | Non
     path : the file to read (ignored for reading when ``data`` is given).
     data : the file's bytes, e.g. from stdin.
     name : the name used in error messages (default: ``path``).
+    max_values : refuse, before reading them, more than this many channel
+        values (frames x channels); None: no limit beyond the file size's.
 
     Raises
     ------
@@ -52,12 +56,12 @@ def read_bvh(path: str | os.PathLike, data: bytes | None = None, name: str | Non
         except OSError as exc:
             raise DataError(f"cannot read: {exc.strerror or exc}", name) from None
     try:
-        return parse_bvh(data)
+        return parse_bvh(data, max_values)
     except DataError as exc:
         raise exc.with_source(name) from None
 
 
-def parse_bvh(data: bytes) -> BvhMotion:
+def parse_bvh(data: bytes, max_values: int | None = None) -> BvhMotion:
     """Parse BVH bytes.  See :func:`read_bvh`."""
     source = data
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
@@ -83,7 +87,7 @@ def parse_bvh(data: bytes) -> BvhMotion:
     skeleton = _parse_hierarchy(header)
     header_lines = header.count("\n") + header.count("\r") - header.count("\r\n")
     channels, frame_time, frame_time_text, fmt = _parse_motion(
-        data[motion_at:], sum(len(c) for c in skeleton.channels), header_lines
+        data, motion_at, sum(len(c) for c in skeleton.channels), header_lines, max_values
     )
     return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt, source=source)
 
@@ -162,19 +166,43 @@ def _parse_hierarchy(header: str) -> Skeleton:
             raise DataError(f"line {ln}: joint without a name")
         return " ".join(parts)
 
-    def body(j: int) -> None:
+    declared: set[int] = set()  # joints whose CHANNELS line has been read
+
+    def open_joint(parent: int, ln: int) -> int:
+        """Read a joint's name, '{' and OFFSET; return its index."""
+        name = joint_name(ln)
+        if name in seen:
+            raise DataError(f"line {ln}: duplicate joint name {name!r}")
+        if len(names) >= MAX_JOINTS:
+            raise DataError(f"more than {MAX_JOINTS} joints: not a plausible skeleton")
+        seen.add(name)
+        names.append(name)
+        parents.append(parent)
+        channels.append(())
         take("{")
-        tok, ln = take("OFFSET")
+        _, ln = take("OFFSET")
         offsets.append([number(ln) for _ in range(3)])
-        ch: tuple[str, ...] = ()
-        while True:
+        return len(names) - 1
+
+    seen: set[str] = set()
+    # an explicit stack of the open joints: a chain of MAX_JOINTS joints
+    # nests that deep, more than Python's recursion allows
+    while nxt is not None:
+        tok, ln = take()
+        if tok.upper() != "ROOT":
+            raise DataError(f"line {ln}: expected ROOT, found {tok[:40]!r}")
+        stack = [open_joint(-1, ln)]
+        while stack:
+            j = stack[-1]
             tok, ln = take()
             key = tok.upper()
             if key == "CHANNELS":
-                if ch:
+                if j in declared:
                     raise DataError(f"line {ln}: second CHANNELS line for joint {names[j]!r}")
+                declared.add(j)
                 ntok, _ = take()
-                if not ntok.isdigit() or int(ntok) > 6:
+                # isascii: str.isdigit() also accepts '³' and other digits int() refuses
+                if not (ntok.isascii() and ntok.isdigit()) or int(ntok) > 6:
                     raise DataError(f"line {ln}: bad channel count {ntok[:20]!r}")
                 ch = tuple(take()[0] for _ in range(int(ntok)))
                 for c in ch:
@@ -184,7 +212,7 @@ def _parse_hierarchy(header: str) -> Skeleton:
                     raise DataError(f"line {ln}: repeated channel for joint {names[j]!r}")
                 channels[j] = ch
             elif key == "JOINT":
-                child(j, ln)
+                stack.append(open_joint(j, ln))
             elif key == "END":
                 take("Site")
                 take("{")
@@ -193,36 +221,9 @@ def _parse_hierarchy(header: str) -> Skeleton:
                 end_offsets.append([number(ln2) for _ in range(3)])
                 take("}")
             elif key == "}":
-                return
+                stack.pop()
             else:
                 raise DataError(f"line {ln}: unexpected {tok[:40]!r} in joint {names[j]!r}")
-
-    def child(parent: int, ln: int) -> None:
-        name = joint_name(ln)
-        if name in names:
-            raise DataError(f"line {ln}: duplicate joint name {name!r}")
-        if len(names) >= MAX_JOINTS:
-            raise DataError(f"more than {MAX_JOINTS} joints: not a plausible skeleton")
-        names.append(name)
-        parents.append(parent)
-        channels.append(())
-        body(len(names) - 1)
-
-    # iterative driver for the roots; the recursion depth is the hierarchy depth
-    import sys
-
-    limit = sys.getrecursionlimit()
-    sys.setrecursionlimit(max(limit, 3 * MAX_JOINTS + 100))
-    try:
-        while nxt is not None:
-            tok, ln = take()
-            if tok.upper() != "ROOT":
-                raise DataError(f"line {ln}: expected ROOT, found {tok[:40]!r}")
-            child(-1, ln)
-    except RecursionError:
-        raise DataError("HIERARCHY nests too deeply") from None
-    finally:
-        sys.setrecursionlimit(limit)
     if not names:
         raise DataError("HIERARCHY has no ROOT joint")
     return Skeleton(
@@ -239,18 +240,54 @@ _FRAMES = re.compile(rb"^\s*Frames\s*:\s*(\S+)\s*$", re.IGNORECASE)
 _FTIME = re.compile(rb"^\s*Frame\s+Time\s*:\s*(\S+)\s*$", re.IGNORECASE)
 
 
-def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.ndarray, float, str, str]:
-    # block starts at the MOTION line
-    parts = block.split(b"\n", 3)
-    if len(parts) < 3:
+#: The MOTION block is parsed this many bytes at a time (cut at line ends), so
+#: that parsing needs the file's bytes, the values and one chunk, not copies
+#: of the whole text.
+_CHUNK_BYTES = 1 << 23
+_NON_ASCII = re.compile(rb"[\x80-\xff]")
+_NON_SPACE = re.compile(rb"\S")
+
+
+def _split_lines(data: bytes, start: int, count: int) -> tuple[list[bytes], int]:
+    """The first ``count`` lines from ``start`` (fewer if the data ends) and
+    where the rest begins, without copying the rest."""
+    lines: list[bytes] = []
+    pos = start
+    for _ in range(count):
+        nl = data.find(b"\n", pos)
+        if nl < 0:
+            lines.append(data[pos:])
+            return lines, len(data)
+        lines.append(data[pos:nl])
+        pos = nl + 1
+    return lines, pos
+
+
+def _chunks(data: bytes, start: int):
+    """``data[start:]`` in pieces of about :data:`_CHUNK_BYTES` ending at a line end."""
+    pos, end_all = start, len(data)
+    while pos < end_all:
+        end = data.find(b"\n", min(pos + _CHUNK_BYTES, end_all))
+        end = end_all if end < 0 else end + 1
+        yield data[pos:end]
+        pos = end
+
+
+def _parse_motion(
+    data: bytes, start: int, n_channels: int, first_line: int, max_values: int | None = None
+) -> tuple[np.ndarray, float, str, str]:
+    # data[start:] begins at the MOTION line
+    lines, body_at = _split_lines(data, start, 3)
+    if len(lines) < 3:
         # tolerate old-Mac CR-only files
-        parts = block.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n", 3)
-    if len(parts) < 3:
+        data, start = data[start:].replace(b"\r\n", b"\n").replace(b"\r", b"\n"), 0
+        lines, body_at = _split_lines(data, start, 3)
+    if len(lines) < 3:
         raise DataError("MOTION section ends before 'Frames:' and 'Frame Time:' (truncated?)")
-    m_frames = _FRAMES.match(parts[1])
+    m_frames = _FRAMES.match(lines[1])
     if not m_frames:
         raise DataError(f"line {first_line + 2}: expected 'Frames: N' after MOTION")
-    m_time = _FTIME.match(parts[2])
+    m_time = _FTIME.match(lines[2])
     if not m_time:
         raise DataError(f"line {first_line + 3}: expected 'Frame Time: seconds'")
     try:
@@ -259,64 +296,109 @@ def _parse_motion(block: bytes, n_channels: int, first_line: int) -> tuple[np.nd
         count = m_frames.group(1)[:20].decode(errors="replace")
         raise DataError(f"line {first_line + 2}: frame count {count!r} is not a whole number") from None
     ft_text = m_time.group(1).decode("ascii", errors="replace")
-    try:
-        frame_time = float(ft_text)
-    except ValueError:
-        frame_time = float("nan")
+    # the grammar of every other number here (float() alone takes '0.01_6667', 'inf', 'nan')
+    if not _NUMBER.match(ft_text):
+        raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]!r} is not a number")
+    frame_time = float(ft_text)
     if not np.isfinite(frame_time) or frame_time <= 0:
         raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]!r} is not a positive number")
+    problem = frame_time_problem(frame_time)
+    if problem is not None:
+        raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]} {problem}")
     if n_frames <= 0:
         raise DataError("has no motion frames (Frames: 0)")
-    body = parts[3] if len(parts) > 3 else b""
     if n_channels == 0:
         raise DataError("no joint has CHANNELS")
-    try:
-        text = body.decode("ascii")
-    except UnicodeDecodeError as exc:
-        raise DataError(f"MOTION data is not text (byte {exc.start} of the data)") from None
-    if not text.strip():
-        _explain_count(text, n_frames, n_channels, first_line + 4)
-    values = _fast_values(text, n_frames, n_channels)
-    if values is None:  # ragged lines or odd tokens: the slow path says exactly where
-        tokens = text.split()
-        if len(tokens) != n_frames * n_channels:
-            _explain_count(text, n_frames, n_channels, first_line + 4)
-        try:
-            if "_" in text:  # Python's float() reads '1_000'; no BVH reader does
-                raise ValueError
-            values = np.array(tokens, dtype=float).reshape(n_frames, n_channels)
-        except ValueError:
-            _explain_values(text, first_line + 4)
-            raise
-    if not np.all(np.isfinite(values)):
-        bad = int(np.flatnonzero(~np.isfinite(values.ravel()))[0])
-        raise DataError(f"frame {bad // n_channels}: a value is not a finite number ({values.ravel()[bad]})")
-    if values.size and np.abs(values).max() > MAX_MAGNITUDE:
-        bad = int(np.argmax(np.abs(values.ravel()) > MAX_MAGNITUDE))
+    if max_values is not None and n_frames * n_channels > max_values:
         raise DataError(
-            f"frame {bad // n_channels}: value {values.ravel()[bad]:g} is too large (the limit is {MAX_MAGNITUDE:g})"
+            f"has {n_frames:,} frames of {n_channels} channels ({n_frames * n_channels:,} values): "
+            f"more than the limit of {max_values:,} values (frames x channels): cut it into parts"
         )
-    head = text[:200_000]
-    sample = head.split() if len(text) <= len(head) else head.rsplit(None, 1)[0].split()
+    bad = _NON_ASCII.search(data, body_at)
+    if bad is not None:
+        raise DataError(f"MOTION data is not text (byte {bad.start() - body_at} of the data)")
+
+    def text() -> str:  # the whole block, for the messages of the error paths only
+        return data[body_at:].decode("ascii")
+
+    # every value takes a character and a separator: more declared than that
+    # cannot be there (and must not be allocated)
+    if _NON_SPACE.search(data, body_at) is None or n_frames * n_channels > (len(data) - body_at + 1) // 2:
+        _explain_count(text(), n_frames, n_channels, first_line + 4)
+    values = _fast_values(data, body_at, n_frames, n_channels)
+    if values is None:  # ragged lines or odd tokens: the slow path says exactly where
+        values, wrong = _slow_values(data, body_at, n_frames, n_channels)
+        if values is None:
+            if wrong == "count":
+                _explain_count(text(), n_frames, n_channels, first_line + 4)
+            _explain_values(text(), first_line + 4)
+            raise DataError("MOTION data does not parse")  # not reached: the two above explain
+    lo, hi = float(values.min()), float(values.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        bad_at = int(np.flatnonzero(~np.isfinite(values.ravel()))[0])
+        raise DataError(f"frame {bad_at // n_channels}: a value is not a finite number ({values.ravel()[bad_at]})")
+    if max(-lo, hi) > MAX_MAGNITUDE:
+        bad_at = int(np.argmax(np.abs(values.ravel()) > MAX_MAGNITUDE))
+        raise DataError(
+            f"frame {bad_at // n_channels}: value {values.ravel()[bad_at]:g} is too large "
+            f"(the limit is {MAX_MAGNITUDE:g})"
+        )
+    head = data[body_at : body_at + 200_000].decode("ascii")
+    sample = head.split() if len(data) - body_at <= len(head) else head.rsplit(None, 1)[0].split()
     fmt = _number_format(sample, values.ravel())
-    if fmt.endswith("f") and not body.rstrip(b" \t").endswith((b"\n", b"\r")):
+    tail = data[max(body_at, len(data) - 4096) :]
+    if fmt.endswith("f") and not tail.rstrip(b" \t").endswith((b"\n", b"\r")):
         # no final newline and a last number shorter than all the others: cut off
-        last, decimals = text.rsplit(None, 1)[-1], int(fmt[2:-1])
+        last, decimals = tail.decode("ascii").rsplit(None, 1)[-1], int(fmt[2:-1])
         if decimals > 0 and "." not in last or "." in last and len(last) - last.index(".") - 1 < decimals:
             raise DataError(f"frame {n_frames - 1}: the last line is cut off after {last[:20]!r} (truncated?)")
     return values, frame_time, ft_text, fmt
 
 
-def _fast_values(text: str, n_frames: int, n_channels: int) -> np.ndarray | None:
-    """The MOTION block as (frames, channels) with numpy's C parser, or None
-    when it does not parse as one frame per line (then the slow path explains)."""
-    if "_" in text:  # loadtxt, like float(), reads '1_000'
+def _fast_values(data: bytes, start: int, n_frames: int, n_channels: int) -> np.ndarray | None:
+    """The MOTION block as (frames, channels) with numpy's C parser, chunk by
+    chunk, or None when it does not parse as one frame per line (then the
+    slow path reads it, or explains)."""
+    if data.find(b"_", start) >= 0:  # loadtxt, like float(), reads '1_000'
         return None
-    try:
-        values = np.loadtxt(io.StringIO(text), dtype=float, ndmin=2, comments=None)
-    except ValueError:
-        return None
-    return values if values.shape == (n_frames, n_channels) else None
+    out = np.empty((n_frames, n_channels))
+    row = 0
+    for piece in _chunks(data, start):
+        if _NON_SPACE.search(piece) is None:
+            continue  # blank lines only (loadtxt would warn)
+        try:
+            vals = np.loadtxt(io.StringIO(piece.decode("ascii")), dtype=float, ndmin=2, comments=None)
+        except ValueError:
+            return None
+        if vals.shape[1] != n_channels or row + len(vals) > n_frames:
+            return None
+        out[row : row + len(vals)] = vals
+        row += len(vals)
+    return out if row == n_frames else None
+
+
+def _slow_values(data: bytes, start: int, n_frames: int, n_channels: int) -> tuple[np.ndarray | None, str]:
+    """The values of a MOTION block whose lines are ragged (the count of all
+    its numbers is what matters), chunk by chunk.  Returns the values and "",
+    or None and what is wrong: "count" (not frames x channels numbers) or
+    "value" (a token that is not a number)."""
+    total = n_frames * n_channels
+    out = np.empty(total)
+    k = 0
+    bad_value = data.find(b"_", start) >= 0  # Python's float() reads '1_000'; no BVH reader does
+    for piece in _chunks(data, start):
+        tokens = piece.split()
+        if k + len(tokens) > total:
+            return None, "count"
+        if not bad_value:
+            try:
+                out[k : k + len(tokens)] = [float(t) for t in tokens]
+            except ValueError:
+                bad_value = True
+        k += len(tokens)
+    if k != total:
+        return None, "count"
+    return (None, "value") if bad_value else (out.reshape(n_frames, n_channels), "")
 
 
 def _explain_count(text: str, n_frames: int, n_channels: int, first_line: int) -> None:
@@ -357,10 +439,13 @@ def _number_format(tokens: list[str], values: np.ndarray) -> str:
     sample = tokens[::step]
     decimals = max((len(t) - t.index(".") - 1 if "." in t and "e" not in t.lower() else 0) for t in sample)
     digits = max(len(t.lower().split("e")[0].lstrip("+-").replace(".", "").lstrip("0")) for t in sample)
-    if decimals <= 12 and _whole(values * 10.0**decimals):
+    if decimals <= 12 and _whole_scaled(values, 10.0**decimals):
         return f"%.{decimals}f"
     nz = values[values != 0.0]
-    if digits <= 17 and _whole(nz * 10.0 ** (max(digits, 1) - 1 - np.floor(np.log10(np.abs(nz))))):
+    if digits <= 17 and all(
+        _whole(part * 10.0 ** (max(digits, 1) - 1 - np.floor(np.log10(np.abs(part)))))
+        for part in (nz[i : i + (1 << 20)] for i in range(0, len(nz), 1 << 20))
+    ):
         return f"%.{max(digits, 1)}g"
     return "%.17g"
 
@@ -371,9 +456,41 @@ def _whole(scaled: np.ndarray) -> bool:
     return bool(np.all(np.abs(scaled - np.rint(scaled)) <= 1e-7 * np.maximum(1.0, np.abs(scaled)) + 1e-9))
 
 
+def _whole_scaled(values: np.ndarray, scale, block: int = 1 << 20) -> bool:
+    """``_whole(values * scale)`` a block at a time (``scale`` a number or an
+    array like ``values``): no temporaries the size of a long clip."""
+    for i in range(0, len(values), block):
+        part = scale if np.ndim(scale) == 0 else scale[i : i + block]
+        if not _whole(values[i : i + block] * part):
+            return False
+    return True
+
+
 def _fmt_number(x: float) -> str:
     s = repr(float(x))
     return s[:-2] if s.endswith(".0") else s
+
+
+def check_writable(motion: BvhMotion) -> None:
+    """Refuse to write a BVH that :func:`read_bvh` would refuse: numbers
+    beyond :data:`MAX_MAGNITUDE` (or not finite), a frame time out of range
+    or not in the reader's number grammar.  Raises ``DataError``."""
+    sk = motion.skeleton
+    for what, values in (("joint offset", sk.offsets), ("End Site offset", sk.end_offsets)):
+        if values.size and not np.all(np.abs(values) <= MAX_MAGNITUDE):
+            raise DataError(f"cannot write the BVH: a {what} is beyond ±{MAX_MAGNITUDE:g} (the BVH reader's limit)")
+    ch = motion.channels
+    if ch.size and not np.all(np.abs(ch) <= MAX_MAGNITUDE):
+        bad = int(np.flatnonzero(~(np.abs(ch.ravel()) <= MAX_MAGNITUDE))[0])
+        frame, col = divmod(bad, ch.shape[1])
+        raise DataError(
+            f"cannot write the BVH: frame {frame}, channel {col} would be {ch.ravel()[bad]:g}, "
+            f"beyond ±{MAX_MAGNITUDE:g} (the BVH reader's limit)"
+        )
+    text = motion.frame_time_text or _fmt_number(motion.frame_time)
+    problem = "is not a number" if not _NUMBER.match(text) else frame_time_problem(float(text))
+    if problem is not None:
+        raise DataError(f"cannot write the BVH: frame time {text[:20]} {problem}")
 
 
 def bvh_bytes(motion: BvhMotion) -> bytes:
@@ -386,7 +503,11 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     value at that place; changed numbers are printed with
     ``motion.number_format``.  Without a usable source: tab-indented header,
     LF line endings, every number in ``motion.number_format``.
+
+    Raises ``DataError`` for a motion the reader would refuse
+    (:func:`check_writable`): a command never writes what it cannot read back.
     """
+    check_writable(motion)
     if motion.source:
         kept = _in_source_layout(motion)
         if kept is not None:
@@ -400,15 +521,22 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     for j, p in enumerate(sk.parents):
         children.setdefault(int(p), []).append(j)
 
-    def emit(j: int, depth: int) -> None:
+    # depth first with an explicit stack (a chain of 10^4 joints is as deep
+    # as it is long): ("open", j, depth) writes joint j and queues its
+    # children, then ("close", j, depth) writes its End Sites and brace
+    stack: list[tuple[bool, int, int]] = [(True, r, 0) for r in reversed(children.get(-1, []))]
+    while stack:
+        opening, j, depth = stack.pop()
         ind = "\t" * depth
-        out.append(f"{ind}{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {sk.names[j]}")
-        out.append(f"{ind}{{")
-        out.append(f"{ind}\tOFFSET {' '.join(_fmt_number(v) for v in sk.offsets[j])}")
-        if sk.channels[j]:
-            out.append(f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
-        for c in children.get(j, []):
-            emit(c, depth + 1)
+        if opening:
+            out.append(f"{ind}{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {sk.names[j]}")
+            out.append(f"{ind}{{")
+            out.append(f"{ind}\tOFFSET {' '.join(_fmt_number(v) for v in sk.offsets[j])}")
+            if sk.channels[j]:
+                out.append(f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
+            stack.append((False, j, depth))
+            stack.extend((True, c, depth + 1) for c in reversed(children.get(j, [])))
+            continue
         for o in ends.get(j, []):
             out.extend(
                 [
@@ -420,8 +548,6 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
             )
         out.append(f"{ind}}}")
 
-    for r in children.get(-1, []):
-        emit(r, 0)
     ch = motion.channels
     out += [
         "MOTION",

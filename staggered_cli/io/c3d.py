@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from ..motion import MarkerMotion
+from ..motion import MAX_RATE, MIN_RATE, MarkerMotion
 from .isolate import ChildFailed, fd_path, run_isolated
 
 log = logging.getLogger(__name__)
@@ -55,10 +55,9 @@ MAX_FRAMES = 10**8
 MAX_MAGNITUDE = 1e12
 #: Most frames ezc3d 1.7.2 can write so that they read back (16-bit counts).
 MAX_WRITE_FRAMES = 65535
-#: Marker frame rates (POINT:RATE, Hz) read and written: anything outside is
-#: not a capture (and 1e-308 Hz is 0 once stored as a 4-byte float).
-MIN_RATE = 1.0
-MAX_RATE = 10_000.0
+# Marker frame rates (POINT:RATE, Hz) read and written are the clips' limits
+# (motion.MIN_RATE to MAX_RATE): anything outside is not a capture (and
+# 1e-308 Hz is 0 once stored as a 4-byte float).
 #: C3D stores the dimensions of a parameter in bytes: at most 255 labels per
 #: LABELS parameter, the rest continue in LABELS2, LABELS3, ...
 _LABELS_PER_PARAMETER = 255

@@ -334,6 +334,8 @@ def _load_json_text(raw: bytes, name: str, what: str) -> Any:
         raise _fail(name, f"malformed {what}: {err.msg} at line {err.lineno} column {err.colno}") from None
     except RecursionError:
         raise _fail(name, f"malformed {what}: nested too deeply") from None
+    except ValueError:  # an integer of more than sys.get_int_max_str_digits() digits
+        raise _fail(name, f"malformed {what}: a number has too many digits") from None
 
 
 def _parse_npy_header(head: bytes, aname: str, name: str) -> tuple[np.dtype, bool, tuple[int, ...], int]:

@@ -11,7 +11,6 @@ import errno
 import os
 import stat
 import sys
-import tempfile
 
 from ..errors import DataError, StaggeredError, UsageError
 
@@ -108,6 +107,17 @@ def read_bytes(path: str, limit: int = MAX_INPUT_BYTES, probe=None, probe_bytes:
         if stat.S_ISREG(st.st_mode) and st.st_size > limit:
             raise DataError(_too_big(st.st_size, limit), source=name)
         with open(path, "rb") as f:
+            if stat.S_ISREG(st.st_mode):
+                if probe is not None and st.st_size >= probe_bytes:
+                    try:  # the head alone first: a file to refuse is not read to its end
+                        probe(os.pread(f.fileno(), probe_bytes, 0))
+                    except StaggeredError as err:
+                        raise err.with_source(name) from None
+                # then one read into one buffer of the file's size: no chunks to join
+                data = f.read()
+                if len(data) > limit:  # it grew since the stat
+                    raise DataError(_too_big(len(data), limit), source=name)
+                return data, name
             # not only regular files: FIFOs and process substitution too
             return _read_stream(f, limit, name, probe, probe_bytes), name
     except OSError as err:
@@ -149,15 +159,33 @@ def check_output(path: str, force: bool) -> None:
 
 
 def write_stdout(data: bytes) -> None:
-    """Write ``data`` to standard output as bytes and flush."""
+    """Write ``data`` to standard output as bytes and flush.
+
+    A real file descriptor is written with ``os.write`` until every byte is
+    out: a reader that goes away mid-way (``| head -1``) then raises
+    ``BrokenPipeError`` (exit 141) instead of a short write passing unseen.
+    """
     out = sys.stdout
+    if out is None:
+        raise StaggeredError("standard output is closed: nothing can be written to it", source=STDOUT_NAME)
     buf = getattr(out, "buffer", None)
     if buf is None:  # a text-only replacement of stdout
         out.write(data.decode("utf-8", errors="surrogateescape"))
-    else:
-        out.flush()  # keep order with text already written
+        out.flush()
+        return
+    out.flush()  # keep order with text already written
+    try:
+        fd = buf.fileno()
+    except (OSError, ValueError, AttributeError):
+        fd = None  # in memory (tests, batch stages)
+    if fd is None:
         buf.write(data)
         buf.flush()
+    else:
+        buf.flush()
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view[: 1 << 20]) :]
     out.flush()
 
 
@@ -183,9 +211,9 @@ def write_atomic(path: str, data: bytes, force: bool) -> None:
         return
     check_output(path, force)
     directory = os.path.dirname(os.path.abspath(path))
-    base = os.path.basename(path)
+    remove_stale_temporaries(path)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{base}.", suffix=".tmp", dir=directory)
+        fd, tmp = _create_temporary(path)
     except OSError as err:
         raise StaggeredError(f"cannot write: {_os_reason(err)}", source=path) from err
     try:
@@ -214,6 +242,63 @@ def write_atomic(path: str, data: bytes, force: bool) -> None:
                 os.unlink(tmp)
             except OSError:
                 pass  # the rename or link succeeded; nothing else to clean up
+
+
+_TEMP_TAG = ".staggered-"
+
+
+def _temporary_name(path: str, pid: int) -> str:
+    """``DIR/.NAME.staggered-PID.tmp``: one name per output and process, so
+    that a later run can tell a leftover of a killed run from a live one."""
+    directory, base = os.path.split(os.path.abspath(path))
+    return os.path.join(directory, f".{base}{_TEMP_TAG}{pid}.tmp")
+
+
+def _create_temporary(path: str) -> tuple[int, str]:
+    tmp = _temporary_name(path, os.getpid())
+    for _ in range(2):
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), tmp
+        except FileExistsError:
+            # left by an earlier, dead process that had our pid (this process
+            # writes one output at a time)
+            os.unlink(tmp)
+    return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), tmp
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    except OSError:
+        return True  # cannot tell: keep its file
+    return True
+
+
+def remove_stale_temporaries(path: str) -> list[str]:
+    """Remove the temporary files of ``path`` left by writers that were killed
+    (SIGKILL, power loss) before they could clean up: those whose pid is no
+    longer running.  Returns the names removed."""
+    directory, base = os.path.split(os.path.abspath(path))
+    prefix = f".{base}{_TEMP_TAG}"
+    removed = []
+    try:
+        names = [n for n in os.listdir(directory) if n.startswith(prefix) and n.endswith(".tmp")]
+    except OSError:
+        return removed
+    for n in names:
+        pid = n[len(prefix) : -len(".tmp")]
+        if not pid.isascii() or not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)):
+            continue
+        try:
+            os.unlink(os.path.join(directory, n))
+            removed.append(n)
+        except OSError:
+            pass  # removed meanwhile, or not ours to remove
+    return removed
 
 
 def _fsync_directory(directory: str) -> None:

@@ -50,8 +50,8 @@ import numpy as np
 from .. import contacts as contact_detection
 from .. import ik, placement, signals
 from ..document import Document, dense_variables, from_motion
-from ..errors import UsageError
-from ..motion import BvhMotion, MarkerMotion
+from ..errors import DataError, UsageError
+from ..motion import BvhMotion, MarkerMotion, rate_problem
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -65,20 +65,37 @@ SEGMENT_REACH = 3.0
 CONTACT_REWARD = 0.15
 #: A refinement stays only where it cuts the misfit around its pose to this share.
 REFINE_GAIN = 0.4
-#: Default fewest seconds between two poses (issue 13).
+#: Default fewest seconds between two poses (issue 13), and the most allowed.
 DEFAULT_MIN_SPACING = 0.1
+MAX_MIN_SPACING = 10.0
 #: Default refinement search window, seconds (paper: 0.25 s).
 DEFAULT_REFINE_WINDOW = 0.25
 
 
-def _check(name: str, value: float, *, positive: bool = False) -> float:
+#: Largest clip extract takes, in values: frames x channels (BVH) or frames x
+#: markers x 3 (C3D).  Extraction needs about 160 bytes per BVH value
+#: (measured: 1.1 GB for 6.6 million), so this keeps it under about 1.4 GB;
+#: 8 million values are 23 minutes of a 31-joint skeleton at 60 Hz.
+MAX_EXTRACT_VALUES = 8_000_000
+
+#: Largest values of the options that are durations, seconds: far beyond any
+#: use (the defaults are 0.025 to 0.25 s), and they bound the filters' cost.
+MAX_SMOOTHING = 10.0
+MAX_FILTER_WIDTH = 10.0
+MAX_REFINE_WINDOW = 10.0
+MAX_MIN_CONTACT = 60.0
+
+
+def _check(name: str, value: float, *, positive: bool = False, upper: float | None = None) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
         raise UsageError(f"{name} must be a number, got {value!r}") from None
     if not np.isfinite(value) or value < 0 or (positive and value == 0):
         raise UsageError(f"{name} must be a {'positive' if positive else 'non-negative'} number, got {value}")
-    return value
+    if upper is not None and value > upper:
+        raise UsageError(f"{name} must be at most {upper:g} s, got {value:g}")
+    return value + 0.0  # -0.0 -> 0.0
 
 
 def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndarray:
@@ -442,15 +459,26 @@ def extract(
     ------
     UsageError for a bad option or an unknown contact joint.
     """
-    smoothing = _check("--smoothing", signals.DEFAULT_SMOOTHING if smoothing is None else smoothing)
-    filter_width = _check("--filter-width", filter_width)
-    refine_window = _check("--refine-window", refine_window)
-    min_contact = _check("--min-contact", min_contact)
+    smoothing = _check(
+        "--smoothing", signals.DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
+    )
+    filter_width = _check("--filter-width", filter_width, upper=MAX_FILTER_WIDTH)
+    refine_window = _check("--refine-window", refine_window, upper=MAX_REFINE_WINDOW)
+    min_contact = _check("--min-contact", min_contact, upper=MAX_MIN_CONTACT)
     contact_tolerance = _check("--contact-tolerance", contact_tolerance, positive=True)
     significance = _check("--significance", significance)
-    min_spacing = _check("--min-spacing", min_spacing)
+    min_spacing = _check("--min-spacing", min_spacing, upper=MAX_MIN_SPACING)
     T = motion.n_frames
     rate = float(motion.rate)
+    size = motion.channels.size if isinstance(motion, BvhMotion) else motion.points.size
+    if size > MAX_EXTRACT_VALUES:
+        raise DataError(
+            f"is too long to extract: {size:,} values, more than the limit of {MAX_EXTRACT_VALUES:,} "
+            "(frames x channels, or frames x markers x 3): cut it into parts"
+        )
+    problem = rate_problem(rate) if np.isfinite(rate) else "is not a finite number"
+    if problem is not None:
+        raise DataError(f"frame rate {rate:g} Hz {problem}")
 
     ev = signals.local_evidence(motion, smoothing)
     joints = contact_detection.contact_joints(motion, contact_joints)

@@ -322,6 +322,7 @@ def randomize(
     ``seed``.  C3D markers are retimed as a kinematic chain: the markers of
     ``joints`` in the order given, or all markers joined by
     :func:`.marker_chain.rigid_tree`."""
+    tau = float(tau) + 0.0  # -0.0 -> 0.0: uniform(0, -0.0) is refused
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
         raise UsageError(
             f"--tau must be between 0 and {doc.seconds(_longest_shift(doc))} (the clip's length), got {tau:g}"
