@@ -149,4 +149,8 @@ def test_workers_end_with_their_parent(tmp_path, sig, code):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert not out.exists() or not [p for p in out.rglob("*") if p.is_file()]
+    # files a worker finished before the signal are whole; nothing half-written is left
+    if out.exists():
+        assert not [p for p in out.rglob("*") if p.is_file() and p.suffix == ".tmp"]
+        for p in out.rglob("*.bvh"):
+            read_bvh(p)
