@@ -624,10 +624,9 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                     check_c3d(raw.tobytes(), "source.c3d")
                 except DataError as exc:
                     need(False, str(exc))
-            from .io.c3d import RATE_LIMITS, rate_ok
-
             rate = float(c["rate"])
-            need(rate_ok(rate), f"the c3d rate {rate:g} Hz is outside {RATE_LIMITS}")
+            problem = rate_problem(rate) if np.isfinite(rate) else "is not a finite number"
+            need(problem is None, f"c3d rate {rate:g} Hz {problem}")
             sha = src_info.get("sha256", "")
             if raw.size and sha:  # the embedded file is the source the manifest names
                 need(

@@ -36,7 +36,7 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
     rate = finite(fps, "--fps") if fps is not None else None
     if rate is not None and rate <= 0:
         raise click.BadParameter(f"must be positive, got {fps}", param_hint="--fps")
-    if rate is not None:
+    if rate is not None:  # the readers' limits, BVH and C3D: never write what they refuse
         from ..motion import rate_problem
 
         if rate_problem(rate) is not None:
@@ -45,10 +45,5 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
     if blend < 0:
         raise click.BadParameter(f"must not be negative, got {ik_blend}", param_hint="--ik-blend")
     doc = read_document(input_path)
-    if rate is not None and doc.kind == "c3d":
-        from ..io.c3d import RATE_LIMITS, rate_ok
-
-        if not rate_ok(rate):  # the limits of the C3D reader: never write what it refuses
-            raise click.BadParameter(f"a C3D is written at {RATE_LIMITS}, got {fps}", param_hint="--fps")
     check_motion_output(doc.kind, output)
     write_motion(op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend), output, force)
