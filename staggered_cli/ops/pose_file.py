@@ -60,7 +60,15 @@ def export_poses(doc: Document, on: str = "true") -> BvhMotion:
     src = require_bvh(doc, "export-poses")
     rot, tra = pose_locals(doc, on)
     ref = reference_channels(doc, doc.pose_t)
+    # a pose on a source frame takes that frame's own numbers as the
+    # reference (its wraps and -0 included); between frames, the unwrapped blend
+    f = np.rint(doc.pose_t / doc.frame_time).astype(int)
+    on_frame = (np.abs(f * doc.frame_time - doc.pose_t) < 1e-9) & (f >= 0) & (f < doc.n_frames)
+    ref = np.where(on_frame[:, None], src.channels[np.clip(f, 0, doc.n_frames - 1)], ref)
     channels = channels_from_local(src.skeleton, rot, tra, ref)
+    # where a pose is the source's to rounding noise, write the source's own
+    # numbers (its -0 and last digit included), as bake does
+    channels = np.where(np.abs(channels - ref) < 1e-9, ref, channels)
     return BvhMotion(src.skeleton, channels, src.frame_time, src.frame_time_text, src.number_format)
 
 
