@@ -49,7 +49,8 @@ def _token(x: str):
 
 
 def _arm(sk) -> int:
-    return next(j for j, n in enumerate(sk.names) if ("arm" in n.lower() or "elbow" in n.lower()) and sk.has_rotation(j))
+    limb = ("arm", "elbow")
+    return next(j for j, n in enumerate(sk.names) if any(x in n.lower() for x in limb) and sk.has_rotation(j))
 
 
 def _world(motion):
