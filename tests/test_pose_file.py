@@ -197,9 +197,7 @@ def test_all_refuses_files_it_cannot_apply(extracted, tmp_path):
     turned = tmp_path / "turned.bvh"
     turned.write_bytes(bvh_bytes(BvhMotion(replace(sk, offsets=off), exported.channels, m.frame_time)))
     first = next(j for j in range(sk.n_joints) if np.abs(sk.offsets[j, 1:]).max() > 1e-4 * m.figure_height())
-    one_line_error(
-        run(["edit-pose", doc_path, "--from-bvh", turned, "--all"]), 1, f"joint {sk.names[first]!r}", "axis"
-    )
+    one_line_error(run(["edit-pose", doc_path, "--from-bvh", turned, "--all"]), 1, f"joint {sk.names[first]!r}", "axis")
     other = mocap("games105_idle.bvh")
     one_line_error(run(["edit-pose", doc_path, "--from-bvh", other, "--all"]), 1, "a different skeleton")
     one_line_error(run(["edit-pose", doc_path, "--all"]), 2, "--all needs --from-bvh")

@@ -112,7 +112,7 @@ def check_same_skeleton(doc: Document, motion: BvhMotion, name: str | None = Non
         raise DataError(
             f"the offset of joint {ours.names[j]!r} differs from the document's by {off[j]:.4g} "
             f"({off[j] / size:.2g} of the figure height): another skeleton, or an axis conversion on "
-            "import or export (use forward -Z, up Y)",
+            "import or export (import with forward Y, up Z)",
             name,
         )
 
