@@ -372,3 +372,25 @@ def test_new_refuses_a_single_key_and_a_c3d():
     _, data = _keys("bandai2_run_normal_001.bvh", [5])
     one_line_error(run(["new", "-", "-o", "-"], input=data), 2, "at least two key poses")
     one_line_error(run(["new", mocap("c3dorg_sample01_Eb015pi_walk.c3d"), "-o", "-"]), 2, "BVH")
+
+
+def test_the_keys_of_a_new_document_export_as_they_came():
+    """The blocking loop: new, then export-poses gives the key file's frames back."""
+    frames = [0, 20, 45, 70, 110, 150]
+    m, data = _keys("bandai1_walk_normal_001.bvh", frames)
+    times = ",".join(repr(f * m.frame_time) for f in frames)
+    doc = run(["new", "-", "--times", times, "-o", "-"], input=data).stdout_bytes
+    r = run(["export-poses", "-", "-o", "-"], input=doc)
+    assert r.exit_code == 0, r.stderr
+    back = parse_bvh(r.stdout_bytes)
+    keys = parse_bvh(data)
+    assert back.n_frames == 6
+    assert np.abs(back.world()[1] - keys.world()[1]).max() <= 1e-6 * m.figure_height()
+    r = run(["info", "-", "--json"], input=doc)
+    assert [p["frame"] for p in json.loads(r.stdout)["poses"]] == frames
+
+
+def test_export_poses_needs_a_bvh_document():
+    r = run(["extract", mocap("c3dorg_sample01_Eb015pi_walk.c3d"), "-o", "-"])
+    assert r.exit_code == 0, r.stderr
+    one_line_error(run(["export-poses", "-", "-o", "-"], input=r.stdout_bytes), 2, "needs a BVH document")

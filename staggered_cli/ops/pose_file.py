@@ -19,8 +19,8 @@ from .. import quat
 from ..document import Document, reference_channels, require_bvh, variable_layout
 from ..errors import DataError, UsageError
 from ..motion import BvhMotion, channels_from_local
-from ..representation import ROTATION, TRANSLATION, Track, knots_from_poses
-from .edit_pose import joint_mask, pose_values
+from ..representation import ROTATION, TRANSLATION, Track, knots_from_poses, pose_arrays
+from .edit_pose import joint_mask
 
 #: What counts as a change when a pose file comes back (issue 15).
 ROTATION_CHANGED = 0.01  # degrees
@@ -44,12 +44,13 @@ def pose_locals(doc: Document, on: str = "true") -> tuple[np.ndarray, np.ndarray
     K = doc.n_poses
     rot = quat.identity((K, sk.n_joints))
     tra = np.broadcast_to(sk.offsets, (K, sk.n_joints, 3)).copy()
-    for k in range(K):
-        for tr, vals in zip(doc.tracks, pose_values(doc, k, _on(on)), strict=True):
-            if tr.kind == ROTATION:
-                rot[k, tr.targets] = vals
-            else:
-                tra[k, tr.targets] = vals
+    for tr in doc.tracks:
+        _, value, edit = pose_arrays(tr, K)
+        vals = edit if _on(on) == "true" else value  # (K, V, D)
+        if tr.kind == ROTATION:
+            rot[:, tr.targets] = vals
+        else:
+            tra[:, tr.targets] = vals
     return rot, tra
 
 
