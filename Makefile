@@ -3,6 +3,7 @@
 # make lint   ruff
 # make bench  run every bench/*.py
 # make golden regenerate tests/golden/ on purpose (tests never do)
+# make test-blender  set up .venv-blender (Python 3.11, bpy 5.0.1) and run the Blender round trip tests
 # make batch  IN=dir OUT=dir [STEPS='cull --keep 30%|...']: extract -> steps -> bake over a library
 
 SHELL := /bin/bash
@@ -16,7 +17,7 @@ BENCHES = $(sort $(wildcard bench/*.py))
 DEMO_OUT := out/demo
 PYTEST_ARGS ?=
 
-.PHONY: all demo test lint bench golden install clean batch _batch-files samples pictures
+.PHONY: all demo test test-blender lint bench golden install clean batch _batch-files samples pictures
 
 all: test
 
@@ -31,6 +32,20 @@ install: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+# Blender's bpy wheel (one PyPI wheel, about 374 MB) exists for Python 3.11
+# only and pins numpy < 2: it gets its own venv with the project installed.
+PYTHON311 ?= python3.11
+BLENDER_VENV ?= .venv-blender
+BLENDER_STAMP := $(BLENDER_VENV)/.staggered-installed
+
+$(BLENDER_STAMP): pyproject.toml
+	$(PYTHON311) -m venv $(BLENDER_VENV) || { echo "could not create $(BLENDER_VENV): bpy 5.0.1 needs Python 3.11 (set PYTHON311=...)" >&2; exit 1; }
+	$(BLENDER_VENV)/bin/python -m pip install 'bpy==5.0.1' 'numpy<2' 'pytest>=7.4' 'pytest-timeout>=2.1' -e .
+	touch $@
+
+test-blender: $(BLENDER_STAMP)
+	$(BLENDER_VENV)/bin/python -m pytest tests/blender $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

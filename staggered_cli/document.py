@@ -887,6 +887,14 @@ def _checked_track(n, kind, names, targets, arrays, pose_t, need, arr) -> Track:
     )
 
 
+def source_frame(doc: Document, k: int) -> int | float:
+    """The source frame index of pose ``k`` (frame f is at f · frame_time):
+    a whole number when the pose is on a frame, else the fractional frame
+    (3 decimals), e.g. after ``cull --add-time`` between frames."""
+    f = float(doc.pose_t[k]) / doc.frame_time
+    return int(round(f)) if abs(f - round(f)) < 1e-6 else round(f, 3)
+
+
 def document_summary(doc: Document) -> dict:
     """What ``info --json`` prints for a document (a public interface: keep it stable)."""
     ref = doc.refinements()
@@ -899,6 +907,7 @@ def document_summary(doc: Document) -> dict:
             {
                 "index": k,
                 "time": round(float(doc.pose_t[k]), 9),
+                "frame": source_frame(doc, k),
                 "priority": round(pr, 9) if np.isfinite(pr) else None,
                 "refinements": r,
             }

@@ -135,4 +135,12 @@ def pose_mask(doc, poses: str | None, time: str | None):
     return select_poses(doc, int_list(poses, "--poses"), time_range(time, "--time"))
 
 
-__all__ = ["check_output", "read_document", "write_document", "write_motion", "DataError"]
+def note(message: str) -> None:
+    """One informational line on stderr, ``staggered: message`` (silenced by -q)."""
+    import logging
+
+    if logging.getLogger("staggered_cli").isEnabledFor(logging.WARNING):
+        click.echo(f"staggered: {message}", err=True)
+
+
+__all__ = ["note", "check_output", "read_document", "write_document", "write_motion", "DataError"]

@@ -10,7 +10,7 @@ from .options import force_option, format_option, input_argument, output_option
 
 @click.command("edit-pose")
 @input_argument
-@click.option("--pose", "pose", required=True, type=int, help="Pose index, as `info --json` reports it.")
+@click.option("--pose", "pose", type=int, help="Pose index, as `info --json` reports it.")
 @click.option(
     "--on",
     "on",
@@ -54,6 +54,12 @@ from .options import force_option, format_option, input_argument, output_option
     is_flag=True,
     help="With --from-bvh: take the root's place and heading from the file too (default: keep the document's).",
 )
+@click.option(
+    "--all",
+    "all_poses",
+    is_flag=True,
+    help="With --from-bvh: frame k of the file sets pose k, for every pose (a file from export-poses).",
+)
 @click.option("--time", "new_time", metavar="T", help="Move the pose to T seconds.")
 @click.option("--shift", metavar="DT", help="Move the pose by DT seconds.")
 @output_option
@@ -72,6 +78,7 @@ def edit_pose(
     from_bvh,
     frame,
     root,
+    all_poses,
     new_time,
     shift,
     output,
@@ -90,6 +97,14 @@ def edit_pose(
         raise click.UsageError("give --time or --shift, not both")
     if subtree and not joints:
         raise click.UsageError("--subtree needs --joints: it adds the descendants of the joints named there")
+    if all_poses:
+        if from_bvh is None or pose is not None or frame is not None:
+            raise click.UsageError("--all needs --from-bvh, and no --pose or --frame")
+        if rot or tra or w is not None or new_time is not None or shift is not None or root:
+            raise click.UsageError("--all goes with --from-bvh, --on, --joints and --subtree only")
+        return _apply_all(input_path, from_bvh, on, joints, subtree, output, force, fmt)
+    if pose is None:
+        raise click.UsageError("Missing option '--pose' (or use --from-bvh FILE --all)")
     if (from_bvh is None) != (frame is None):
         raise click.UsageError("--from-bvh and --frame go together")
     if root and from_bvh is None:
@@ -128,3 +143,24 @@ def edit_pose(
         t = finite(new_time, "--time") if new_time is not None else doc.pose_t[k] + finite(shift, "--shift")
         doc = retime_pose(doc, k, t)
     write_document(doc, output, fmt, force)
+
+
+def _apply_all(input_path, from_bvh, on, joints, subtree, output, force, fmt):
+    """``--from-bvh FILE --all``: frame k of FILE sets pose k where it changed."""
+    from ..io.files import display_name
+    from ..motion import BvhMotion
+    from ..ops.pose_file import apply_pose_file
+    from .common import note
+    from .options import load_input
+
+    doc = read_document(input_path)
+    other = load_input(from_bvh)
+    name = display_name(from_bvh)
+    if not isinstance(other, BvhMotion):
+        raise click.UsageError(f"--from-bvh {name} is not a BVH file")
+    doc, n_poses, n_joints = apply_pose_file(doc, other, on=on, joints=name_list(joints), subtree=subtree, name=name)
+    write_document(doc, output, fmt, force)
+    note(
+        f"{name}: {n_poses} of {doc.n_poses} poses changed ({n_joints} joint{'' if n_joints == 1 else 's'}); "
+        "the others are untouched"
+    )

@@ -51,6 +51,8 @@ COMMANDS: dict[str, str] = {
     "succession": "staggered_cli.cli.succession:succession",
     "randomize": "staggered_cli.cli.randomize:randomize",
     "bake": "staggered_cli.cli.bake:bake",
+    "export-poses": "staggered_cli.cli.export_poses:export_poses",
+    "new": "staggered_cli.cli.new:new",
     "plot": "staggered_cli.cli.plot:plot",
     "preview": "staggered_cli.cli.preview:preview",
     "batch": "staggered_cli.cli.batch:batch",

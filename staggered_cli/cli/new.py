@@ -1,0 +1,56 @@
+"""``staggered new``: a document from key poses blocked in a DCC (a sparse BVH)."""
+
+from __future__ import annotations
+
+import os
+
+import click
+
+from .common import check_output, finite, write_document
+from .options import force_option, format_option, input_argument, output_option
+
+
+def _times(value: str | None):
+    if value is None:
+        return None
+    parts = [p for p in value.split(",") if p.strip()]
+    if not parts:
+        raise click.BadParameter("expected comma-separated seconds", param_hint="--times")
+    return [finite(p, "--times") for p in parts]
+
+
+@click.command("new")
+@input_argument
+@click.option(
+    "--times",
+    metavar="T,T,...",
+    help="Seconds of each key (frame) of FILE, from 0, increasing. Default: the file's own frame times.",
+)
+@output_option
+@force_option
+@format_option
+def new(input_path, times, output, force, fmt):
+    """A document whose poses are the frames of the BVH FILE (key poses).
+
+    Cubic splines pass through the keys with smooth blocking tangents; the
+    displacement maps are empty.  The motion runs at FILE's frame time.
+    """
+    import numpy as np
+
+    from ..errors import UsageError
+    from ..ops.pose_file import new_document
+    from .extract import _read_motion
+
+    check_output(output, force)
+    t = _times(times)
+    motion, data = _read_motion(input_path)
+    from ..motion import BvhMotion
+
+    name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
+    if not isinstance(motion, BvhMotion):
+        raise UsageError("new reads key poses from a BVH (this is a C3D)", source=name)
+    try:
+        doc = new_document(motion, None if t is None else np.array(t), source_name=name, source_bytes=data)
+    except UsageError as err:
+        raise err.with_source(name) from None
+    write_document(doc, output, fmt, force)

@@ -1,0 +1,385 @@
+"""Poses out to a DCC and back, and new motion from key poses (issue 15).
+
+* :func:`export_poses`: the document's poses as a BVH clip, frame k = pose k,
+  in the source's skeleton, channel layout, Euler orders (on the source's
+  branch) and number format.
+* :func:`apply_pose_file`: every frame k of such a file applied to pose k as
+  a geometric edit, only where it differs from the document's pose.
+* :func:`check_same_skeleton`: the file has the document's joints, in order,
+  with the same offsets.
+* :func:`new_document`: a document whose poses are the frames of a sparse
+  BVH (key poses blocked in a DCC), joined by smooth cubic splines.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import quat
+from ..document import Document, reference_channels, require_bvh, variable_layout
+from ..errors import DataError, UsageError
+from ..motion import BvhMotion, channels_from_local
+from ..representation import ROTATION, TRANSLATION, Track, knots_from_poses, pose_arrays
+from .edit_pose import joint_mask
+
+#: What counts as a change when a pose file comes back (issue 15).
+ROTATION_CHANGED = 0.01  # degrees
+TRANSLATION_CHANGED = 1e-5  # of figure height
+#: Offsets of a pose file must match the document's to this fraction of the
+#: figure height: float32 round trips (Blender) pass, an axis conversion fails.
+OFFSET_TOLERANCE = 1e-4
+
+
+def _on(on: str) -> str:
+    if on not in ("true", "extreme"):
+        raise UsageError(f"--on must be 'true' or 'extreme', got {on!r}")
+    return on
+
+
+def pose_locals(doc: Document, on: str = "true") -> tuple[np.ndarray, np.ndarray]:
+    """Local rotations (K, J, 4) and translations (K, J, 3) of every pose:
+    the true pose at t_k (``on='true'``) or the non-staggered pose."""
+    src = require_bvh(doc, "export-poses")
+    sk = src.skeleton
+    K = doc.n_poses
+    rot = quat.identity((K, sk.n_joints))
+    tra = np.broadcast_to(sk.offsets, (K, sk.n_joints, 3)).copy()
+    for tr in doc.tracks:
+        _, value, edit = pose_arrays(tr, K)
+        vals = edit if _on(on) == "true" else value  # (K, V, D)
+        if tr.kind == ROTATION:
+            rot[:, tr.targets] = vals
+        else:
+            tra[:, tr.targets] = vals
+    return rot, tra
+
+
+def export_poses(doc: Document, on: str = "true") -> BvhMotion:
+    """The poses of ``doc`` as a BVH clip of ``n_poses`` frames (frame k is
+    pose k), with the source's skeleton, channels, frame time and number
+    format; Euler triples nearest the source's channels at t_k."""
+    src = require_bvh(doc, "export-poses")
+    rot, tra = pose_locals(doc, on)
+    ref = reference_channels(doc, doc.pose_t)
+    # a pose on a source frame takes that frame's own numbers as the
+    # reference (its wraps and -0 included); between frames, the unwrapped blend
+    f = np.rint(doc.pose_t / doc.frame_time).astype(int)
+    on_frame = (np.abs(f * doc.frame_time - doc.pose_t) < 1e-9) & (f >= 0) & (f < doc.n_frames)
+    ref = np.where(on_frame[:, None], src.channels[np.clip(f, 0, doc.n_frames - 1)], ref)
+    channels = channels_from_local(src.skeleton, rot, tra, ref)
+    # where a pose is the source's to rounding noise, write the source's own
+    # numbers (its -0 and last digit included), as bake does
+    channels = np.where(np.abs(channels - ref) < 1e-9, ref, channels)
+    return BvhMotion(src.skeleton, channels, src.frame_time, src.frame_time_text, src.number_format)
+
+
+def frame_note(doc: Document, name: str) -> str:
+    """The stderr line of ``export-poses``: how frames map to poses."""
+    t = doc.pose_t
+    times = ", ".join(f"{x:.4g}" for x in t[:3]) + (", ..." if len(t) > 3 else "")
+    return (
+        f"{name}: {len(t)} frames, frame k is pose k (t = {times} s; last {t[-1]:.4g} s); "
+        "Blender shows frame k as frame k+1"
+    )
+
+
+def check_same_skeleton(doc: Document, motion: BvhMotion, name: str | None = None) -> None:
+    """Refuse a pose file whose hierarchy or offsets differ from the document's.
+
+    Joint names and parents must be the same, in order; every offset must be
+    within :data:`OFFSET_TOLERANCE` of the figure height of the document's.
+    Raises DataError naming the first joint that differs and by how much.
+    """
+    src = require_bvh(doc, "--from-bvh")
+    if not isinstance(motion, BvhMotion):
+        raise UsageError("--from-bvh needs a BVH file", name)
+    ours, theirs = src.skeleton, motion.skeleton
+    if ours.names != theirs.names:
+        diff = next((i for i, (a, b) in enumerate(zip(ours.names, theirs.names, strict=False)) if a != b), None)
+        if diff is None:
+            raise DataError(f"has {theirs.n_joints} joints, the document {ours.n_joints}: a different skeleton", name)
+        raise DataError(
+            f"joint {diff} is {theirs.names[diff]!r}, the document's is {ours.names[diff]!r}: a different skeleton",
+            name,
+        )
+    if not np.array_equal(ours.parents, theirs.parents):
+        j = int(np.flatnonzero(ours.parents != theirs.parents)[0])
+        raise DataError(f"joint {ours.names[j]!r} has another parent than in the document", name)
+    size = src.figure_height()
+    off = np.linalg.norm(theirs.offsets - ours.offsets, axis=1)
+    bad = np.flatnonzero(off > OFFSET_TOLERANCE * size)
+    if len(bad):
+        j = int(bad[0])
+        raise DataError(
+            f"the offset of joint {ours.names[j]!r} differs from the document's by {off[j]:.4g} "
+            f"({off[j] / size:.2g} of the figure height): another skeleton, or an axis conversion on "
+            "import or export (import with forward Y, up Z)",
+            name,
+        )
+
+
+def apply_pose_file(
+    doc: Document,
+    motion: BvhMotion,
+    *,
+    on: str = "true",
+    joints: list[str] | None = None,
+    subtree: bool = False,
+    name: str | None = None,
+) -> tuple[Document, int, int]:
+    """Apply frame k of ``motion`` to pose k of ``doc``, for every pose.
+
+    A variable changes only where the file differs from the document's pose
+    (``on='true'``: the pose at t_k; ``'extreme'``: the non-staggered pose)
+    by more than :data:`ROTATION_CHANGED` degrees or
+    :data:`TRANSLATION_CHANGED` of the figure height; its knots of that pose
+    then receive the change (the mutually constrained pair, as in
+    :func:`~staggered_cli.ops.edit_pose.edit_pose`).  Other poses keep
+    their knots bit for bit.  The whole pose comes from the file, the root's
+    translation included, within the ``joints``/``subtree`` mask.
+
+    Returns the document, the number of poses changed and the number of
+    joints changed (over all poses, each joint counted once).
+
+    Raises
+    ------
+    UsageError when the file's frame count is not the pose count, or when it
+    moves a joint the document cannot move (no such channels); DataError
+    when its skeleton differs (:func:`check_same_skeleton`).
+    """
+    _on(on)
+    check_same_skeleton(doc, motion, name)
+    if motion.n_frames != doc.n_poses:
+        raise UsageError(
+            f"has {motion.n_frames} frames but the document has {doc.n_poses} poses: --all needs frame k for pose k",
+            name,
+        )
+    sk = doc.source.skeleton
+    size = doc.source.figure_height()
+    file_rot, file_tra = motion.local_rotations(), motion.local_translations()
+    doc_rot, doc_tra = pose_locals(doc, on)
+    rot_changed = np.degrees(quat.angle_between(doc_rot, file_rot)) > ROTATION_CHANGED  # (K, J)
+    tra_changed = np.linalg.norm(file_tra - doc_tra, axis=-1) > TRANSLATION_CHANGED * size
+    mask = joint_mask(doc, joints, subtree)
+    movable = {ROTATION: np.zeros(sk.n_joints, dtype=bool), TRANSLATION: np.zeros(sk.n_joints, dtype=bool)}
+    allowed = np.zeros(sk.n_joints, dtype=bool)
+    for tr, m in zip(doc.tracks, mask, strict=True):
+        movable[tr.kind][tr.targets] = True
+        allowed[tr.targets[m]] = True
+    if not joints:
+        allowed[:] = True
+    for changed, kind, what in ((rot_changed, ROTATION, "rotates"), (tra_changed, TRANSLATION, "translates")):
+        stuck = changed & ~movable[kind][None, :] & allowed[None, :]
+        if stuck.any():
+            k, j = (int(x[0]) for x in np.nonzero(stuck))
+            channels = "rotation" if kind == ROTATION else "position"
+            raise UsageError(
+                f"frame {k} {what} joint {sk.names[j]!r}, which has no {channels} channels in the document: "
+                "cannot apply it",
+                name,
+            )
+    tracks, touched = [], np.zeros((doc.n_poses, sk.n_joints), dtype=bool)
+    for tr, m in zip(doc.tracks, mask, strict=True):
+        t = tr.targets
+        if tr.kind == ROTATION:
+            change = rot_changed[:, t] & m[None, :]
+            delta = quat.mul(quat.conj(doc_rot[:, t]), file_rot[:, t])  # (K, V, 4): v_new ⊖ v
+        else:
+            change = tra_changed[:, t] & m[None, :]
+            delta = file_tra[:, t] - doc_tra[:, t]
+        if not change.any():
+            tracks.append(tr)
+            continue
+        touched[:, t] |= change
+        var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
+        hit = change[tr.knot_pose, var]
+        knot_v = tr.knot_v.copy()
+        d = delta[tr.knot_pose[hit], var[hit]]
+        if tr.kind == ROTATION:
+            knot_v[hit] = quat.normalize(quat.mul(tr.knot_v[hit], d))
+        else:
+            knot_v[hit] = tr.knot_v[hit] + d
+        tracks.append(_with_knot_values(tr, knot_v))
+    return doc.with_tracks(tuple(tracks)), int(touched.any(axis=1).sum()), int(touched.any(axis=0).sum())
+
+
+def _with_knot_values(tr: Track, knot_v: np.ndarray) -> Track:
+    from dataclasses import replace
+
+    return replace(tr, knot_v=knot_v)
+
+
+# --- new motion from key poses -------------------------------------------------
+
+
+def check_key_times(times: np.ndarray, n_keys: int, frame_time: float) -> np.ndarray:
+    """Key times (seconds) checked: one per key, from 0, strictly increasing,
+    the last on a frame of ``frame_time``.  Raises UsageError."""
+    times = np.asarray(times, dtype=float)
+    if times.shape != (n_keys,):
+        raise UsageError(f"--times gives {len(times)} times for the file's {n_keys} frames")
+    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise UsageError("--times must increase strictly")
+    if abs(times[0]) > 1e-9:
+        raise UsageError(f"--times must start at 0 (the first key is the motion's first frame), got {times[0]:g}")
+    last = times[-1] / frame_time
+    if abs(last - round(last)) > 1e-6:
+        raise UsageError(
+            f"the last time {times[-1]:g} s is not on a frame at the file's frame time {frame_time:g} s "
+            f"(nearest: {np.floor(last) * frame_time:.6g} or {np.ceil(last) * frame_time:.6g} s)"
+        )
+    return times
+
+
+def blocking_velocities(t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Velocities (K, ..., 3) at the keys for a blocking pass, per component,
+    like Blender's Auto Clamped handles: the time-weighted average of the two
+    neighbouring slopes, zero at a key that is a local extreme (the slopes
+    change sign or one is zero) and at the first and last key, and at most
+    three times the smaller slope, so that no segment overshoots its keys.
+
+    ``values`` (K, ...) are positions (file units); rotations use the same
+    rule on angular velocities (:func:`blocking_rotation_tangents`).
+    """
+    h = np.diff(t).reshape((-1,) + (1,) * (values.ndim - 1))
+    slopes = np.diff(values, axis=0) / h  # (K-1, ...)
+    return _clamped_average(t, slopes[:-1], slopes[1:])
+
+
+def _clamped_average(t: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Interior key velocities from the slopes left and right of each key
+    (K-2, ...), with zero at both ends: (K, ...)."""
+    h = np.diff(t)
+    shape = (-1,) + (1,) * (left.ndim - 1)
+    hl, hr = h[:-1].reshape(shape), h[1:].reshape(shape)
+    m = (left * hr + right * hl) / (hl + hr)
+    same = (np.sign(left) == np.sign(right)) & (left != 0) & (right != 0)
+    limit = 3.0 * np.minimum(np.abs(left), np.abs(right))
+    m = np.where(same, np.sign(m) * np.minimum(np.abs(m), limit), 0.0)
+    z = np.zeros((1,) + left.shape[1:])
+    return np.concatenate([z, m, z])
+
+
+def blocking_translation_tangents(t: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Relative Bézier controls (K-1, V, 3) of the segments between keys
+    ``p`` (K, V, 3) at times ``t`` (K,): ``P1 = p_k + a``, ``P2 = p_{k+1} + b``."""
+    m = blocking_velocities(t, p)
+    h = np.diff(t)[:, None, None]
+    return h * m[:-1] / 3.0, -h * m[1:] / 3.0
+
+
+def blocking_rotation_tangents(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation-vector tangents (K-1, V, 3) of the recursive-slerp cubic
+    between keys ``q`` (K, V, 4) at times ``t``: the same rule as for
+    translations on angular velocities in each key's local frame (the slope
+    into a key, ``log(q_{k-1}^-1 q_k) / h``, is the same vector in both
+    keys' frames).  With ``q1 = q0 exp(a)`` the cubic leaves ``q0`` at
+    ``3a`` per unit of normalized time, so ``a = h ω_k / 3``, ``b = -h ω_{k+1} / 3``."""
+    h = np.diff(t)
+    step = quat.log(quat.mul(quat.conj(q[:-1]), q[1:]))  # (K-1, V, 3), radians
+    slopes = step / h[:, None, None]
+    w = _clamped_average(t, slopes[:-1], slopes[1:])
+    return h[:, None, None] * w[:-1] / 3.0, -h[:, None, None] * w[1:] / 3.0
+
+
+def _key_track(kind: str, names, targets, t: np.ndarray, keys: np.ndarray) -> Track:
+    """A track with one unrefined knot per key, blocking tangents and empty
+    displacement maps (keys (K, V, D))."""
+    K, V = keys.shape[:2]
+    ptr, knot_t, knot_v, knot_pose, knot_editing = knots_from_poses(t, np.zeros((K, V)), keys, keys, names)
+    if kind == TRANSLATION:
+        a, b = blocking_translation_tangents(t, keys)
+    else:
+        a, b = blocking_rotation_tangents(t, keys)
+    # segments are stored per variable: (V, K-1, 3) in CSR order
+    a = np.transpose(a, (1, 0, 2)).reshape(-1, 3)
+    b = np.transpose(b, (1, 0, 2)).reshape(-1, 3)
+    d = keys.shape[-1]
+    return Track(
+        kind,
+        tuple(names),
+        np.asarray(targets, dtype=int),
+        ptr,
+        knot_t,
+        knot_v,
+        knot_pose,
+        knot_editing,
+        a,
+        b,
+        np.zeros(V + 1, dtype=int),
+        np.zeros(0),
+        np.zeros((0, d)),
+    )
+
+
+def new_document(
+    keys: BvhMotion,
+    times: np.ndarray | None = None,
+    *,
+    source_name: str = "",
+    source_bytes: bytes | None = None,
+) -> Document:
+    """A document whose poses are the frames of ``keys`` at ``times``
+    (seconds; default: the file's own frame times).
+
+    Cubic splines pass through the keys with blocking tangents
+    (:func:`blocking_velocities`), the displacement maps are empty.  The
+    document's source, which baking and the other operations read, is that
+    motion sampled at the file's frame time from 0 to the last key.
+    """
+    import hashlib
+
+    from ..document import Document as Doc
+    from ..representation import evaluate
+
+    if keys.n_frames < 2:
+        raise UsageError("new needs at least two key poses (frames)")
+    ft = keys.frame_time
+    t = check_key_times(np.arange(keys.n_frames) * ft if times is None else times, keys.n_frames, ft)
+    rot = quat.unroll(keys.local_rotations(), axis=0)
+    tra = keys.local_translations()
+    tracks = []
+    for kind, names, targets in variable_layout(keys):
+        vals = rot[:, targets] if kind == ROTATION else tra[:, targets]
+        tracks.append(_key_track(kind, names, targets, t, vals))
+    n = int(round(t[-1] / ft)) + 1
+    frame_t = np.minimum(np.arange(n) * ft, t[-1])
+    sk = keys.skeleton
+    drot = quat.identity((n, sk.n_joints))
+    dtra = np.broadcast_to(sk.offsets, (n, sk.n_joints, 3)).copy()
+    for tr in tracks:
+        v = evaluate(tr, frame_t)
+        if tr.kind == ROTATION:
+            drot[:, tr.targets] = v
+        else:
+            dtra[:, tr.targets] = v
+    # Euler branch: the keys' own channels, unwrapped and joined linearly
+    from ..motion import rotation_columns
+
+    ch = keys.channels.copy()
+    cols = [c for _, cc, _ in rotation_columns(sk) for c in cc]
+    ch[:, cols] = np.unwrap(ch[:, cols], period=360.0, axis=0)
+    ref = np.stack([np.interp(frame_t, t, ch[:, c]) for c in range(ch.shape[1])], axis=1) if ch.shape[1] else ch
+    dense = channels_from_local(sk, drot, dtra, ref)
+    source = BvhMotion(sk, dense, ft, keys.frame_time_text, _dense_format(keys.number_format))
+    priority = np.zeros(len(t))
+    priority[[0, -1]] = np.inf
+    return Doc(
+        pose_t=t,
+        priority=priority,
+        tracks=tuple(tracks),
+        source=source,
+        source_name=source_name,
+        source_sha256=hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else "",
+        parameters={"new": {"keys": int(keys.n_frames), "times": [float(x) for x in t]}},
+    )
+
+
+def _dense_format(fmt: str) -> str:
+    """The number format of the sampled source: the keys' own, with at least
+    six decimals (a key file blocked by hand may have whole numbers)."""
+    if fmt.endswith("f"):
+        return f"%.{max(int(fmt[2:-1]), 6)}f"
+    if fmt.endswith("g"):
+        return f"%.{max(int(fmt[2:-1]), 6)}g"
+    return fmt
