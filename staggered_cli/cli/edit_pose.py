@@ -5,20 +5,13 @@ from __future__ import annotations
 import click
 
 from .common import check_output, finite, name_list, read_document, triples, write_document
-from .options import force_option, format_option, input_argument, output_option
+from .options import force_option, format_option, input_argument, on_option, output_option
 
 
 @click.command("edit-pose")
 @input_argument
 @click.option("--pose", "pose", type=int, help="Pose index, as `info --json` reports it.")
-@click.option(
-    "--on",
-    "on",
-    type=click.Choice(["true", "extreme"]),
-    default="true",
-    show_default=True,
-    help="Edit the true pose at t_k, or the non-staggered pose (the extreme values).",
-)
+@on_option("Edit")
 @click.option(
     "--rotate",
     multiple=True,

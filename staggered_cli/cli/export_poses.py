@@ -5,19 +5,12 @@ from __future__ import annotations
 import click
 
 from .common import check_output, note, read_document, write_motion
-from .options import force_option, input_argument, output_option
+from .options import force_option, input_argument, on_option, output_option
 
 
 @click.command("export-poses")
 @input_argument
-@click.option(
-    "--on",
-    "on",
-    type=click.Choice(["true", "extreme"]),
-    default="true",
-    show_default=True,
-    help="Write the true pose at t_k, or the non-staggered pose (the extreme values).",
-)
+@on_option("Write")
 @output_option
 @force_option
 def export_poses(input_path, on, output, force):

@@ -84,6 +84,19 @@ format_option = click.option(
 )
 
 
+def on_option(verb: str):
+    """``--on true|extreme``: the true pose at t_k, or the non-staggered pose
+    (edit-pose, export-poses)."""
+    return click.option(
+        "--on",
+        "on",
+        type=click.Choice(["true", "extreme"]),
+        default="true",
+        show_default=True,
+        help=f"{verb} the true pose at t_k, or the non-staggered pose (the extreme values).",
+    )
+
+
 def document_format(fmt: str | None, output: str) -> str:
     """The document format to write: ``fmt`` if given, else ``json`` for an
     output ending in ``.json`` and ``npz`` for anything else (stdout included)."""

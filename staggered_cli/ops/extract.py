@@ -177,14 +177,12 @@ def pose_count(P: np.ndarray, clusters: list[np.ndarray], gate: np.ndarray, forc
     return max(len(_spaced(maxima, P, forced, spacing)), len(_spaced(on_contact, P, forced, spacing)))
 
 
-def feature_sites(evidence: np.ndarray, gate: np.ndarray, reach: int) -> np.ndarray:
+def feature_sites(evidence: np.ndarray, reach: int) -> np.ndarray:
     """Frames where a pose may go: within ``reach`` frames of a local maximum
-    of the combined local evidence (before the tent filter merges them) where
-    the significance gate passes."""
+    of the combined local evidence (before the tent filter merges them)."""
     T = len(evidence)
     near = np.zeros(T + 1, dtype=int)
     m = signals.local_maxima(evidence)
-    m = m[gate[m]]
     np.add.at(near, np.clip(m - reach, 0, T), 1)
     np.add.at(near, np.clip(m + reach + 1, 0, T), -1)
     return np.flatnonzero(np.cumsum(near)[:T] > 0)
@@ -316,11 +314,6 @@ def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) 
         if e < n_frames - 1 and not breaks[e]:
             out.append((c.joint, e))
     return out
-
-
-def contact_boundaries(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> np.ndarray:
-    """Frames (sorted, unique) where a contact starts or ends (see :func:`contact_events`)."""
-    return np.unique(np.array([f for _, f in contact_events(constraints, n_frames, rate, breaks)], dtype=int))
 
 
 def chain_variables(motion: BvhMotion | MarkerMotion, names: tuple[str, ...], joint: str) -> np.ndarray:
@@ -505,7 +498,7 @@ def extract(
     count = pose_count(P, clusters, gate, forced, spacing)
     stride = max(1, int(round(rate / PLACEMENT_RATE)))
     allowed = np.zeros(T, dtype=bool)
-    allowed[feature_sites(ev.p @ ev.weights, np.ones(T, dtype=bool), reach)] = True
+    allowed[feature_sites(ev.p @ ev.weights, reach)] = True
     # a pose is cheaper by CONTACT_REWARD for each contact change it covers
     covers = np.zeros(T + 1)
     np.add.at(covers, np.clip(boundaries - reach, 0, T), 1.0)
