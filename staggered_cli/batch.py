@@ -294,8 +294,8 @@ def _remove_stale(path: str) -> None:
 #: worker that draws the file named NAME (its path under IN_DIR, or its base
 #: name) die before it reads it, the way a crash in a native library would:
 #: HOW is ``exit`` (``os._exit(3)``), ``segv`` (a real segmentation fault),
-#: ``kill`` (SIGKILL, as the out-of-memory killer sends) or ``hang`` (sleeps
-#: until killed).  The tests use it to check that a dead worker fails its
+#: ``kill`` (SIGKILL, as the out-of-memory killer sends), ``hang`` (sleeps
+#: until killed) or ``hang-writing`` (sleeps in the write of its output).  The tests use it to check that a dead worker fails its
 #: file only; nothing else sets it.
 FAULT_ENV = "STAGGERED_TEST_WORKER_FAULT"
 
@@ -323,15 +323,24 @@ def _inject_fault(rel: str) -> None:
         elif how == "hang":
             while True:
                 time.sleep(1.0)
+        elif how == "hang-writing":  # hangs once an output's temporary file exists
+
+            def hang(fd: int) -> None:
+                while True:
+                    time.sleep(1.0)
+
+            os.fsync = hang
 
 
 def _die_with_parent(parent_pid: int) -> None:
     """End this worker when the batch process ends, however it ends.
 
-    On Linux the kernel sends SIGKILL on the parent's death
+    On Linux the kernel sends SIGTERM on the parent's death
     (``prctl(PR_SET_PDEATHSIG)``); elsewhere, and for a parent that died
-    before the call, a thread watches the parent's pid.  An idle worker also
-    ends when its pipe closes.
+    before the call, a thread watches the parent's pid and sends it.  SIGTERM
+    unwinds the worker (see ``_worker_main``), so that the output it was
+    writing when a SIGKILL took the batch leaves no temporary file behind.
+    An idle worker also ends when its pipe closes.
     """
     import signal
     import threading
@@ -341,7 +350,7 @@ def _die_with_parent(parent_pid: int) -> None:
             import ctypes
 
             libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+            libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
         except (OSError, AttributeError):
             pass  # no prctl: the watcher thread below still ends us
     if os.getppid() != parent_pid:
@@ -350,6 +359,8 @@ def _die_with_parent(parent_pid: int) -> None:
     def watch() -> None:
         while os.getppid() == parent_pid:
             time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(_GRACE)
         os._exit(1)
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
@@ -358,6 +369,7 @@ def _die_with_parent(parent_pid: int) -> None:
 def _worker_main(conn, parent_pid: int, level: int) -> None:
     """A worker process: run the jobs sent on ``conn`` one by one, send back each Result."""
     import signal
+    import threading
 
     _die_with_parent(parent_pid)
     # Ctrl-C reaches the whole process group: the parent handles it and ends
@@ -366,6 +378,8 @@ def _worker_main(conn, parent_pid: int, level: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def unwind(signum, frame):
+        # a worker that cannot unwind in time (stuck in native code) is ended
+        threading.Timer(_GRACE, os._exit, (1,)).start()
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, unwind)

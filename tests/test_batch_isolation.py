@@ -115,9 +115,12 @@ def _running(pid: int) -> bool:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("sig, code", [(signal.SIGKILL, -signal.SIGKILL), (signal.SIGTERM, 143)])
-def test_workers_end_with_their_parent(tmp_path, sig, code):
+@pytest.mark.parametrize("fault", ["hang", "hang-writing"])
+def test_workers_end_with_their_parent(tmp_path, sig, code, fault):
+    """Whether the batch is killed while its workers compute or while they
+    write (a temporary file on disk), the workers end and leave no file behind."""
     lib = _library(tmp_path)
-    env = {**os.environ, FAULT_ENV: "run.bvh=hang;bow.bvh=hang"}
+    env = {**os.environ, FAULT_ENV: f"run.bvh={fault};bow.bvh={fault}"}
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [str(STAGGERED), "batch", str(lib), str(out), "--jobs", "2"],
