@@ -295,8 +295,9 @@ def _remove_stale(path: str) -> None:
 #: name) die before it reads it, the way a crash in a native library would:
 #: HOW is ``exit`` (``os._exit(3)``), ``segv`` (a real segmentation fault),
 #: ``kill`` (SIGKILL, as the out-of-memory killer sends), ``hang`` (sleeps
-#: until killed) or ``hang-writing`` (sleeps in the write of its output).  The tests use it to check that a dead worker fails its
-#: file only; nothing else sets it.
+#: until killed) or ``hang-writing`` (sleeps in the write of its output).
+#: The tests use it to check that a dead worker fails its file only; nothing
+#: else sets it.
 FAULT_ENV = "STAGGERED_TEST_WORKER_FAULT"
 
 #: Seconds a worker is given to end (and remove its temporary file) after

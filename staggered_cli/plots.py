@@ -541,7 +541,7 @@ def timing_figure(
     xs, ys, cs, segs, seg_c, ex, ey = [], [], [], [], [], [], []
     for r, v in enumerate(rows):
         tr = doc.tracks[v.track]
-        sl = tr.knots(v.local)
+        sl = tr.knot_slice(v.local)
         kt, kp, ke = tr.knot_t[sl], tr.knot_pose[sl], tr.knot_editing[sl]
         ext = ~ke
         te, tk = kt[ext], pose_t[kp[ext]]
@@ -707,7 +707,7 @@ def curves_figure(
             mean = orig[seen].mean(axis=0) if seen.any() else np.zeros(orig.shape[1])
             orig, spl, out = orig - mean, spl - mean, out - mean
         tr = doc.tracks[v.track]
-        sl = tr.knots(v.local)
+        sl = tr.knot_slice(v.local)
         kt, ke = tr.knot_t[sl], tr.knot_editing[sl]
         keep = (kt >= lo - 1e-9) & (kt <= hi + 1e-9)
         for c, axis in enumerate(labels):

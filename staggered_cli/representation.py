@@ -29,10 +29,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import quat, splines
+from . import kinds, quat, splines
 
-TRANSLATION = "translation"
-ROTATION = "rotation"
+TRANSLATION = kinds.TRANSLATION
+ROTATION = kinds.ROTATION
 _DIM = {TRANSLATION: 3, ROTATION: 4}
 _AT_KNOT = 1e-9  # seconds: a sample this close to a knot is the knot
 #: Rotation tangents are fitted to at most this many evenly spread samples of
@@ -47,8 +47,89 @@ FIT_ITERATIONS = 10
 
 
 @dataclass(frozen=True)
+class Knots:
+    """The knots of every variable of a track, in CSR layout.
+
+    Attributes
+    ----------
+    ptr : (V+1,) int, offsets: variable ``i`` owns knots ``ptr[i]:ptr[i+1]``.
+    t : (NK,) knot times in seconds (strictly increasing per variable).
+    v : (NK, D) knot values.
+    pose : (NK,) int, the staggered pose (of the knots' layer) each knot belongs to.
+    editing : (NK,) bool, True for editing knots (at ``t_k``).
+    """
+
+    ptr: np.ndarray
+    t: np.ndarray
+    v: np.ndarray
+    pose: np.ndarray
+    editing: np.ndarray
+
+    @property
+    def n_vars(self) -> int:
+        return len(self.ptr) - 1
+
+    @property
+    def var(self) -> np.ndarray:
+        """(NK,) the variable each knot belongs to."""
+        return np.repeat(np.arange(self.n_vars), np.diff(self.ptr))
+
+    @property
+    def seg_ptr(self) -> np.ndarray:
+        """(V+1,) offsets of the segments (one fewer than the knots per variable)."""
+        return self.ptr - np.arange(self.n_vars + 1)
+
+    def of(self, i: int) -> slice:
+        return slice(int(self.ptr[i]), int(self.ptr[i + 1]))
+
+    def subset(self, keep: np.ndarray, pose: np.ndarray | None = None) -> Knots:
+        """The knots where ``keep`` (NK,) is True, with ``pose`` (NK,) as their
+        new pose indices (default: unchanged)."""
+        keep = np.asarray(keep, dtype=bool)
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(self.var[keep], minlength=self.n_vars))]).astype(int)
+        new_pose = self.pose if pose is None else np.asarray(pose, dtype=int)
+        return Knots(ptr, self.t[keep], self.v[keep], new_pose[keep], self.editing[keep])
+
+    def with_values(self, v: np.ndarray) -> Knots:
+        return replace(self, v=np.asarray(v, dtype=float))
+
+    def with_times(self, t: np.ndarray) -> Knots:
+        return replace(self, t=np.asarray(t, dtype=float))
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One layer of a track: a spline over its knots and a displacement map.
+
+    Attributes
+    ----------
+    knots : the layer's knots.  The base layer (layer 0) holds the staggered
+        poses of the document; a layer above it holds offsets at its own poses.
+    tan_a, tan_b : (NK - V, 3) relative inner controls of each segment
+        (see :mod:`splines`).
+    samp_ptr : (V+1,) int, CSR offsets into the sample arrays.
+    samp_s : (NS,) knot coordinates (segment + u) of displacement samples.
+    samp_d : (NS, D) displacement values (vectors, or unit quaternions).
+    """
+
+    knots: Knots
+    tan_a: np.ndarray
+    tan_b: np.ndarray
+    samp_ptr: np.ndarray
+    samp_s: np.ndarray
+    samp_d: np.ndarray
+
+    def samples(self, i: int) -> slice:
+        return slice(int(self.samp_ptr[i]), int(self.samp_ptr[i + 1]))
+
+    @property
+    def has_detail(self) -> bool:
+        return len(self.samp_s) > 0
+
+
+@dataclass(frozen=True)
 class Track:
-    """All control variables of one kind.
+    """All control variables of one kind, as a stack of layers.
 
     Attributes
     ----------
@@ -57,30 +138,17 @@ class Track:
     names : (V,) variable names (``JOINT`` for rotations, ``JOINT.position``
         for BVH translations, the marker label for C3D).
     targets : (V,) int, the joint or marker each variable drives.
-    knot_ptr : (V+1,) int, CSR offsets into the knot arrays.
-    knot_t : (NK,) knot times in seconds.
-    knot_v : (NK, D) knot values.
-    knot_pose : (NK,) int, the staggered pose each knot belongs to.
-    knot_editing : (NK,) bool, True for editing knots (at ``t_k``).
-    tan_a, tan_b : (NK - V, 3) relative inner controls of each segment.
-    samp_ptr : (V+1,) int, CSR offsets into the sample arrays.
-    samp_s : (NS,) knot coordinates (segment + u) of displacement samples.
-    samp_d : (NS, D) displacement values (vectors, or unit quaternions).
+    layers : the stack, bottom first.  Layer 0 is fitted to the motion; the
+        motion is ``layer_0 ⊕ layer_1 ⊕ ...`` (the order matters for
+        rotations: each layer acts in the frame of the ones below).
+
+    The ``knot_*``, ``tan_*`` and ``samp_*`` attributes are the base layer's.
     """
 
     kind: str
     names: tuple[str, ...]
     targets: np.ndarray
-    knot_ptr: np.ndarray
-    knot_t: np.ndarray
-    knot_v: np.ndarray
-    knot_pose: np.ndarray
-    knot_editing: np.ndarray
-    tan_a: np.ndarray
-    tan_b: np.ndarray
-    samp_ptr: np.ndarray
-    samp_s: np.ndarray
-    samp_d: np.ndarray
+    layers: tuple[Layer, ...]
 
     @property
     def n_vars(self) -> int:
@@ -91,39 +159,103 @@ class Track:
         return _DIM[self.kind]
 
     @property
-    def seg_ptr(self) -> np.ndarray:
-        return self.knot_ptr - np.arange(self.n_vars + 1)
+    def ops(self) -> kinds.KindOps:
+        return kinds.ops_for(self.kind)
 
-    def knots(self, i: int) -> slice:
-        return slice(int(self.knot_ptr[i]), int(self.knot_ptr[i + 1]))
+    @property
+    def base(self) -> Layer:
+        return self.layers[0]
+
+    @property
+    def knots(self) -> Knots:
+        """The base layer's knots (the document's staggered poses)."""
+        return self.layers[0].knots
+
+    # the base layer, by its old names
+    knot_ptr = property(lambda self: self.layers[0].knots.ptr)
+    knot_t = property(lambda self: self.layers[0].knots.t)
+    knot_v = property(lambda self: self.layers[0].knots.v)
+    knot_pose = property(lambda self: self.layers[0].knots.pose)
+    knot_editing = property(lambda self: self.layers[0].knots.editing)
+    tan_a = property(lambda self: self.layers[0].tan_a)
+    tan_b = property(lambda self: self.layers[0].tan_b)
+    samp_ptr = property(lambda self: self.layers[0].samp_ptr)
+    samp_s = property(lambda self: self.layers[0].samp_s)
+    samp_d = property(lambda self: self.layers[0].samp_d)
+
+    @property
+    def seg_ptr(self) -> np.ndarray:
+        return self.knots.seg_ptr
+
+    def knot_slice(self, i: int) -> slice:
+        return self.knots.of(i)
 
     def samples(self, i: int) -> slice:
-        return slice(int(self.samp_ptr[i]), int(self.samp_ptr[i + 1]))
+        return self.layers[0].samples(i)
 
     def index(self, name: str) -> int:
         return self.names.index(name)
+
+    def with_layer(self, n: int, layer: Layer) -> Track:
+        """The track with layer ``n`` replaced (``n == len(layers)`` appends)."""
+        if not 0 <= n <= len(self.layers):
+            raise IndexError(f"layer {n} of {len(self.layers)}")
+        return replace(self, layers=self.layers[:n] + (layer,) + self.layers[n + 1 :])
+
+    def with_base(self, layer: Layer) -> Track:
+        return self.with_layer(0, layer)
+
+    def without_layer(self, n: int) -> Track:
+        if not 1 <= n < len(self.layers):
+            raise IndexError(f"layer {n} of {len(self.layers)} (the base layer stays)")
+        return replace(self, layers=self.layers[:n] + self.layers[n + 1 :])
+
+    def with_knot_values(self, v: np.ndarray, layer: int = 0) -> Track:
+        """The same track with layer ``layer``'s knot values replaced: the
+        relative tangents carry along, the displacement maps are untouched."""
+        lay = self.layers[layer]
+        return self.with_layer(layer, replace(lay, knots=lay.knots.with_values(v)))
 
 
 # --- construction ----------------------------------------------------------
 
 
-def empty_track(kind: str, names: tuple[str, ...] = (), targets: np.ndarray | None = None) -> Track:
+def empty_layer(kind: str, n_vars: int) -> Layer:
     d = _DIM[kind]
-    z = np.zeros(0)
-    zi = np.zeros(0, dtype=int)
-    return Track(
-        kind,
-        tuple(names),
-        np.zeros(len(names), dtype=int) if targets is None else np.asarray(targets, dtype=int),
-        np.zeros(len(names) + 1, dtype=int),
-        z,
-        np.zeros((0, d)),
-        zi,
-        np.zeros(0, dtype=bool),
-        np.zeros((0, 3)),
-        np.zeros((0, 3)),
-        np.zeros(len(names) + 1, dtype=int),
-        z,
+    ptr = np.zeros(n_vars + 1, dtype=int)
+    knots = Knots(ptr, np.zeros(0), np.zeros((0, d)), np.zeros(0, dtype=int), np.zeros(0, dtype=bool))
+    return Layer(knots, np.zeros((0, 3)), np.zeros((0, 3)), ptr.copy(), np.zeros(0), np.zeros((0, d)))
+
+
+def empty_track(kind: str, names: tuple[str, ...] = (), targets: np.ndarray | None = None) -> Track:
+    targets = np.zeros(len(names), dtype=int) if targets is None else np.asarray(targets, dtype=int)
+    return Track(kind, tuple(names), targets, (empty_layer(kind, len(names)),))
+
+
+def offset_layer(kind: str, n_vars: int, pose_t: np.ndarray) -> Layer:
+    """A layer of identity offsets at the poses ``pose_t`` (K,), for every
+    variable: it leaves the motion as it is.  Its tangents are flat (the
+    inner controls sit on the knots), so an offset set at one pose rises from
+    the identity at the previous pose and falls back at the next with zero
+    velocity at all three: smooth, and confined between the neighbours."""
+    ops = kinds.ops_for(kind)
+    K = len(pose_t)
+    ptr = np.arange(n_vars + 1) * K
+    knots = Knots(
+        ptr,
+        np.tile(np.asarray(pose_t, dtype=float), n_vars),
+        ops.identity((n_vars * K,)),
+        np.tile(np.arange(K), n_vars),
+        np.zeros(n_vars * K, dtype=bool),
+    )
+    n_seg = n_vars * max(K - 1, 0)
+    d = _DIM[kind]
+    return Layer(
+        knots,
+        np.zeros((n_seg, 3)),
+        np.zeros((n_seg, 3)),
+        np.zeros(n_vars + 1, dtype=int),
+        np.zeros(0),
         np.zeros((0, d)),
     )
 
@@ -150,12 +282,7 @@ def sample_dense(kind: str, frame_t: np.ndarray, dense: np.ndarray, t: np.ndarra
     lo = hi - 1
     w = np.clip((tt - frame_t[lo]) / (frame_t[hi] - frame_t[lo]), 0.0, 1.0)
     cols = np.arange(V)[None, :]
-    a, b = dense[lo, cols], dense[hi, cols]
-    if kind == TRANSLATION:
-        return a + (b - a) * w[..., None]
-    exact = w == 0.0
-    out = quat.slerp(a, b, w)
-    return np.where(exact[..., None], a, out)
+    return kinds.ops_for(kind).interpolate(dense[lo, cols], dense[hi, cols], w)
 
 
 def knots_from_poses(
@@ -164,8 +291,8 @@ def knots_from_poses(
     value: np.ndarray,
     edit_value: np.ndarray,
     names: tuple[str, ...] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """CSR knot arrays from pose-level arrays.
+) -> Knots:
+    """The knots of pose-level arrays.
 
     Parameters
     ----------
@@ -173,10 +300,6 @@ def knots_from_poses(
     refine : (K, V) refinements, seconds.
     value : (K, V, D) extreme values.
     edit_value : (K, V, D) editing-knot values (used where ``refine != 0``).
-
-    Returns
-    -------
-    knot_ptr, knot_t, knot_v, knot_pose, knot_editing
     """
     K, V = refine.shape
     names = names or tuple(f"variable {i}" for i in range(V))
@@ -201,7 +324,7 @@ def knots_from_poses(
         es.append(e[order])
         ptr.append(ptr[-1] + len(t))
     d = value.shape[-1]
-    return (
+    return Knots(
         np.array(ptr, dtype=int),
         np.concatenate(ts) if ts else np.zeros(0),
         np.concatenate(vs) if vs else np.zeros((0, d)),
@@ -219,7 +342,7 @@ def build_track(
     pose_t: np.ndarray,
     refine: np.ndarray,
 ) -> Track:
-    """Fit a track to dense motion for given poses and refinements.
+    """Fit a one-layer track to dense motion for given poses and refinements.
 
     Parameters
     ----------
@@ -233,40 +356,38 @@ def build_track(
     value = sample_dense(kind, frame_t, dense, extreme_t)
     edit_value = sample_dense(kind, frame_t, dense, pose_t)
     knots = knots_from_poses(pose_t, refine, value, edit_value, names)
-    check_knot_order(knots[0], knots[1], names)
-    samples_t = [frame_t] * V
-    samples_v = [dense[:, i] for i in range(V)]
-    return fit_track(kind, names, targets, *knots, samples_t, samples_v)
+    check_knot_order(knots.ptr, knots.t, names)
+    layer = fit_layer(kind, knots, [frame_t] * V, [dense[:, i] for i in range(V)])
+    return Track(kind, tuple(names), np.asarray(targets, dtype=int), (layer,))
 
 
 def fit_track(
     kind: str,
     names: tuple[str, ...],
     targets: np.ndarray,
-    knot_ptr: np.ndarray,
-    knot_t: np.ndarray,
-    knot_v: np.ndarray,
-    knot_pose: np.ndarray,
-    knot_editing: np.ndarray,
+    knots: Knots,
     samples_t: list[np.ndarray],
     samples_v: list[np.ndarray],
 ) -> Track:
+    """A one-layer track fitted to samples (see :func:`fit_layer`)."""
+    return Track(kind, tuple(names), np.asarray(targets, dtype=int), (fit_layer(kind, knots, samples_t, samples_v),))
+
+
+def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: list[np.ndarray]) -> Layer:
     """Fit splines to samples between given knots and measure displacement maps.
 
     ``samples_t[i]`` (Ni,) and ``samples_v[i]`` (Ni, D) are the motion of
     variable ``i``; samples at a knot time are dropped (the knot is exact).
     Every segment of every variable is fitted in one batched call.
     """
-    V = len(names)
-    seg_ptr = knot_ptr - np.arange(V + 1)
-    n_seg = int(seg_ptr[-1])
+    V = knots.n_vars
+    seg_ptr = knots.seg_ptr
     gseg, us, vals, owner, scoord = [], [], [], [], []
     for i in range(V):
-        kt = knot_t[knot_ptr[i] : knot_ptr[i + 1]]
+        kt = knots.t[knots.of(i)]
         t = np.asarray(samples_t[i], dtype=float)
         seg, u = _locate(kt, t)
-        near = _near_knot(kt, t)
-        keep = ~near & (t > kt[0]) & (t < kt[-1])
+        keep = ~_near_knot(kt, t) & (t > kt[0]) & (t < kt[-1])
         gseg.append(seg[keep] + seg_ptr[i])
         us.append(u[keep])
         vals.append(np.asarray(samples_v[i])[keep])
@@ -278,38 +399,39 @@ def fit_track(
     v_a = np.concatenate(vals) if vals else np.zeros((0, d))
     s_a = np.concatenate(scoord) if scoord else np.zeros(0)
     owner_a = np.concatenate(owner) if owner else np.zeros(0, dtype=int)
-    # segment endpoints: knot j and j+1 of the same variable
-    seg_var = np.repeat(np.arange(V), np.diff(seg_ptr))
-    first = knot_ptr[seg_var] + (np.arange(n_seg) - seg_ptr[seg_var])
-    p0, p3 = knot_v[first], knot_v[first + 1]
-    if kind == TRANSLATION:
-        a, b = splines.fit_translation_tangents(p0, p3, gseg_a, u_a, v_a, n_seg)
-        s_val = splines.bezier_eval_at(p0, a, b, p3, gseg_a, u_a)
-        disp = v_a - s_val
-    else:
-        v_a = quat.normalize(v_a)
-        pick = _evenly_within_segments(gseg_a, FIT_SAMPLES)
-        a, b = splines.fit_rotation_tangents(
-            p0, p3, gseg_a[pick], u_a[pick], v_a[pick], n_seg, iterations=FIT_ITERATIONS
-        )
-        s_val = splines.rotation_eval_at(p0, a, b, p3, gseg_a, u_a)
-        disp = quat.hemisphere(quat.mul(quat.conj(s_val), v_a), quat.identity((1,)))
+    first = _segment_first_knots(knots)
+    a, b, disp = _fit_segments(kind, knots.v[first], knots.v[first + 1], gseg_a, u_a, v_a, len(first))
     samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner_a, minlength=V))]).astype(int)
-    return Track(
-        kind,
-        tuple(names),
-        np.asarray(targets, dtype=int),
-        np.asarray(knot_ptr, dtype=int),
-        np.asarray(knot_t, dtype=float),
-        np.asarray(knot_v, dtype=float),
-        np.asarray(knot_pose, dtype=int),
-        np.asarray(knot_editing, dtype=bool),
-        a,
-        b,
-        samp_ptr,
-        s_a,
-        disp,
+    knots = Knots(
+        np.asarray(knots.ptr, dtype=int),
+        np.asarray(knots.t, dtype=float),
+        np.asarray(knots.v, dtype=float),
+        np.asarray(knots.pose, dtype=int),
+        np.asarray(knots.editing, dtype=bool),
     )
+    return Layer(knots, a, b, samp_ptr, s_a, disp)
+
+
+def _fit_segments(kind, p0, p3, gseg, u, values, n_seg):
+    """Tangents (n_seg, 3) x 2 of segments with endpoints ``p0``, ``p3`` fitted
+    to samples ``values`` at (``gseg``, ``u``), and the displacements
+    ``values ⊖ spline`` there."""
+    if kind == TRANSLATION:
+        a, b = splines.fit_translation_tangents(p0, p3, gseg, u, values, n_seg)
+        return a, b, values - splines.bezier_eval_at(p0, a, b, p3, gseg, u)
+    values = quat.normalize(values)
+    pick = _evenly_within_segments(gseg, FIT_SAMPLES)
+    a, b = splines.fit_rotation_tangents(p0, p3, gseg[pick], u[pick], values[pick], n_seg, iterations=FIT_ITERATIONS)
+    s_val = splines.rotation_eval_at(p0, a, b, p3, gseg, u)
+    return a, b, quat.hemisphere(quat.mul(quat.conj(s_val), values), quat.identity((1,)))
+
+
+def _segment_first_knots(knots: Knots) -> np.ndarray:
+    """(S,) the global index of each segment's first knot (its second is the next)."""
+    seg_ptr = knots.seg_ptr
+    n_seg = int(seg_ptr[-1])
+    seg_var = np.repeat(np.arange(knots.n_vars), np.diff(seg_ptr))
+    return knots.ptr[seg_var] + (np.arange(n_seg) - seg_ptr[seg_var])
 
 
 def _evenly_within_segments(seg: np.ndarray, most: int) -> np.ndarray:
@@ -359,13 +481,15 @@ def check_knot_order(knot_ptr: np.ndarray, knot_t: np.ndarray, names: tuple[str,
 # --- evaluation --------------------------------------------------------------
 
 
-def evaluate(track: Track, t: np.ndarray, layers: str = "all") -> np.ndarray:
+def evaluate(track: Track, t: np.ndarray, layers: str = "all", depth: int | None = None) -> np.ndarray:
     """Values of every variable at times ``t``.
 
     Parameters
     ----------
     t : (N,) seconds.
-    layers : ``'all'`` (spline ⊕ displacement) or ``'splines'``.
+    layers : ``'all'`` (spline ⊕ displacement, every layer) or ``'splines'``
+        (the splines of every layer, without their displacement maps).
+    depth : fold only the bottom ``depth`` layers (None: all; 1: the base).
 
     Returns
     -------
@@ -373,69 +497,96 @@ def evaluate(track: Track, t: np.ndarray, layers: str = "all") -> np.ndarray:
     """
     t = np.asarray(t, dtype=float)
     V = track.n_vars
-    var = np.repeat(np.arange(V)[None, :], len(t), axis=0).ravel()
+    var = np.broadcast_to(np.arange(V)[None, :], (len(t), V)).ravel()
     tt = np.repeat(t, V)
-    out = evaluate_at(track, var, tt, layers)
-    return out.reshape(len(t), V, track.dim)
+    return evaluate_at(track, var, tt, layers, depth).reshape(len(t), V, track.dim)
 
 
-def evaluate_at(track: Track, var: np.ndarray, t: np.ndarray, layers: str = "all") -> np.ndarray:
-    """Values of variable ``var[n]`` at time ``t[n]``: (N, D)."""
+def evaluate_at(
+    track: Track, var: np.ndarray, t: np.ndarray, layers: str = "all", depth: int | None = None
+) -> np.ndarray:
+    """Values of variable ``var[n]`` at time ``t[n]``: (N, D), the layers
+    folded bottom up (``v = l_0 ⊕ l_1 ⊕ ...``)."""
+    if layers not in ("all", "splines"):
+        raise ValueError(f"layers must be 'all' or 'splines', got {layers!r}")
     var = np.asarray(var, dtype=int)
     t = np.asarray(t, dtype=float)
+    order = np.argsort(var, kind="stable")
+    bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
+    stack = track.layers if depth is None else track.layers[:depth]
+    out = None
+    for layer in stack:
+        val = layer_at(track.kind, layer, var, t, order, bounds, detail=layers == "all")
+        out = val if out is None else track.ops.oplus(out, val)
+    if track.kind == ROTATION and len(stack) > 1:
+        out = quat.normalize(out)
+    return out
+
+
+def layer_at(
+    kind: str,
+    layer: Layer,
+    var: np.ndarray,
+    t: np.ndarray,
+    order: np.ndarray | None = None,
+    bounds: np.ndarray | None = None,
+    detail: bool = True,
+) -> np.ndarray:
+    """Values (N, D) of one layer (spline ⊕ displacement, or the spline alone
+    without ``detail``) of variable ``var[n]`` at time ``t[n]``.  ``order``
+    and ``bounds`` group the queries by variable (computed when not given)."""
+    knots = layer.knots
+    V = knots.n_vars
+    if order is None:
+        order = np.argsort(var, kind="stable")
+        bounds = np.searchsorted(var[order], np.arange(V + 1))
     N = len(t)
     gseg = np.zeros(N, dtype=int)
     u = np.zeros(N)
     s = np.zeros(N)
-    seg_ptr = track.seg_ptr
-    order = np.argsort(var, kind="stable")
-    bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
-    for i in range(track.n_vars):
+    seg_ptr = knots.seg_ptr
+    for i in range(V):
         idx = order[bounds[i] : bounds[i + 1]]
         if len(idx) == 0:
             continue
-        seg, uu = _locate(track.knot_t[track.knots(i)], t[idx])
+        seg, uu = _locate(knots.t[knots.of(i)], t[idx])
         gseg[idx] = seg + seg_ptr[i]
         u[idx] = uu
         s[idx] = seg + uu
-    seg_var = np.repeat(np.arange(track.n_vars), np.diff(seg_ptr))
-    first = track.knot_ptr[seg_var] + (np.arange(int(seg_ptr[-1])) - seg_ptr[seg_var])
-    p0, p3 = track.knot_v[first], track.knot_v[first + 1]
     if int(seg_ptr[-1]) == 0:  # single-knot variables (a 1-frame clip): the knot itself
-        return track.knot_v[track.knot_ptr[var]]
-    if track.kind == TRANSLATION:
-        val = splines.bezier_eval_at(p0, track.tan_a, track.tan_b, p3, gseg, u)
+        return knots.v[knots.ptr[var]]
+    first = _segment_first_knots(knots)
+    p0, p3 = knots.v[first], knots.v[first + 1]
+    if kind == TRANSLATION:
+        val = splines.bezier_eval_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
     else:
-        val = splines.rotation_eval_at(p0, track.tan_a, track.tan_b, p3, gseg, u)
-    single = np.diff(track.knot_ptr)[var] < 2
+        val = splines.rotation_eval_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
+    single = np.diff(knots.ptr)[var] < 2
     if np.any(single):
-        val[single] = track.knot_v[track.knot_ptr[var[single]]]
-    if layers == "splines":
+        val[single] = knots.v[knots.ptr[var[single]]]
+    if not detail or not layer.has_detail:
         return val
-    d = _displacement_at(track, var, s, order, bounds)
-    if track.kind == TRANSLATION:
-        return val + d
-    return quat.mul(val, d)
+    return kinds.ops_for(kind).oplus(val, _displacement_at(kind, layer, s, order, bounds))
 
 
-def _displacement_at(track: Track, var: np.ndarray, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """Displacement (N, D) at knot coordinates ``s``, identity at integers."""
+    ops = kinds.ops_for(kind)
     N = len(s)
-    D = track.dim
+    D = ops.dim
     lo_val = np.zeros((N, D))
     hi_val = np.zeros((N, D))
     w = np.zeros(N)
-    ident = np.zeros(D)
-    if track.kind == ROTATION:
-        ident[0] = 1.0
-    for i in range(track.n_vars):
+    ident = ops.identity()
+    knots = layer.knots
+    for i in range(knots.n_vars):
         idx = order[bounds[i] : bounds[i + 1]]
         if len(idx) == 0:
             continue
-        n_knots = int(track.knot_ptr[i + 1] - track.knot_ptr[i])
-        sl = track.samples(i)
-        xs = np.concatenate([track.samp_s[sl], np.arange(n_knots, dtype=float)])
-        ys = np.concatenate([track.samp_d[sl], np.broadcast_to(ident, (n_knots, D))])
+        n_knots = int(knots.ptr[i + 1] - knots.ptr[i])
+        sl = layer.samples(i)
+        xs = np.concatenate([layer.samp_s[sl], np.arange(n_knots, dtype=float)])
+        ys = np.concatenate([layer.samp_d[sl], np.broadcast_to(ident, (n_knots, D))])
         o = np.argsort(xs, kind="stable")
         xs, ys = xs[o], ys[o]
         si = s[idx]
@@ -450,88 +601,150 @@ def _displacement_at(track: Track, var: np.ndarray, s: np.ndarray, order: np.nda
         lo_val[idx] = ys[lo]
         hi_val[idx] = ys[hi]
         w[idx] = np.clip(ww, 0.0, 1.0)
-    if track.kind == TRANSLATION:
-        return lo_val + (hi_val - lo_val) * w[:, None]
-    out = quat.slerp(lo_val, hi_val, w)
-    return np.where((w == 0.0)[:, None], lo_val, out)
+    return ops.interpolate(lo_val, hi_val, w)
 
 
 # --- structure ----------------------------------------------------------------
 
 
-def sample_times(track: Track, i: int) -> np.ndarray:
-    """Current times (seconds) of variable ``i``'s displacement samples."""
-    kt = track.knot_t[track.knots(i)]
-    s = track.samp_s[track.samples(i)]
+def sample_times(track: Track, i: int, layer: int = 0) -> np.ndarray:
+    """Current times (seconds) of variable ``i``'s displacement samples in ``layer``."""
+    lay = track.layers[layer]
+    kt = lay.knots.t[lay.knots.of(i)]
+    s = lay.samp_s[lay.samples(i)]
     if len(kt) < 2:
         return np.full(len(s), kt[0] if len(kt) else 0.0)
     seg = np.clip(np.floor(s).astype(int), 0, len(kt) - 2)
     return kt[seg] + (s - seg) * (kt[seg + 1] - kt[seg])
 
 
-def with_knot_times(track: Track, knot_t: np.ndarray) -> Track:
-    """The same track with knots moved in time (same structure): the motion
-    between them is warped, its detail carried along in normalized time."""
-    check_knot_order(track.knot_ptr, knot_t, track.names)
-    return replace(track, knot_t=np.asarray(knot_t, dtype=float))
+def with_knot_times(track: Track, knot_t: np.ndarray, layer: int = 0) -> Track:
+    """The same track with a layer's knots moved in time (same structure):
+    the motion between them is warped, its detail carried along in
+    normalized time."""
+    lay = track.layers[layer]
+    check_knot_order(lay.knots.ptr, knot_t, track.names)
+    return track.with_layer(layer, replace(lay, knots=lay.knots.with_times(knot_t)))
 
 
-def restructure(
-    track: Track,
-    knot_ptr: np.ndarray,
-    knot_t: np.ndarray,
-    knot_v: np.ndarray,
-    knot_pose: np.ndarray,
-    knot_editing: np.ndarray,
-    *,
-    frame_t: np.ndarray | None = None,
-) -> Track:
-    """Refit ``track`` to new knots, keeping the motion it has now.
+def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None) -> Track:
+    """Refit the base layer of ``track`` to new knots, keeping the motion it has now.
 
-    The displacement maps are measured again from the motion as it was
-    (SPEC invariant 2), sampled at the source frame times ``frame_t`` (where
-    the motion is baked, so it stays exact there even after a retiming moved
-    the old samples between frames) plus the old knot times; without
-    ``frame_t``, at the current sample times.
+    Only segments that changed are refitted: a new segment whose two knots
+    (times and values) are two consecutive knots of the old base layer keeps
+    its tangents and displacement samples as they are, so what a user set
+    there (``--ease``, ``detail``) stays exactly.  The other segments are
+    fitted again and their displacement maps measured from the base layer's
+    motion as it was (SPEC invariant 2), sampled at the source frame times
+    ``frame_t`` (where the motion is baked, so it stays exact there even after
+    a retiming moved the old samples between frames) plus the old knot times
+    inside them; without ``frame_t``, at the current sample times.  The
+    layers above the base are kept as they are.
     """
-    check_knot_order(knot_ptr, knot_t, track.names)
-    samples_t, var_idx = [], []
-    for i in range(track.n_vars):
-        base = sample_times(track, i) if frame_t is None else np.asarray(frame_t, dtype=float)
-        st = np.unique(np.concatenate([base, track.knot_t[track.knots(i)]]))
-        samples_t.append(st)
-        var_idx.append(np.full(len(st), i))
-    flat_t = np.concatenate(samples_t) if samples_t else np.zeros(0)
-    flat_var = np.concatenate(var_idx) if var_idx else np.zeros(0, dtype=int)
-    values = evaluate_at(track, flat_var, flat_t)
-    bounds = np.concatenate([[0], np.cumsum([len(x) for x in samples_t])])
-    samples_v = [values[bounds[i] : bounds[i + 1]] for i in range(track.n_vars)]
-    return fit_track(
-        track.kind,
-        track.names,
-        track.targets,
-        knot_ptr,
-        knot_t,
-        knot_v,
-        knot_pose,
-        knot_editing,
-        samples_t,
-        samples_v,
-    )
-
-
-def pose_arrays(track: Track, n_poses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pose-level view: extreme knot times (K, V), extreme values (K, V, D),
-    editing values (K, V, D) (equal to the extreme value where there is no
-    editing knot)."""
+    check_knot_order(knots.ptr, knots.t, track.names)
+    old = track.base
     V = track.n_vars
-    var = np.repeat(np.arange(V), np.diff(track.knot_ptr))
-    ext = ~track.knot_editing
+    kept_old = _unchanged_segments(old.knots, knots)  # (S_new,) old segment index or -1
+    new_first = _segment_first_knots(knots)
+    seg_var = knots.var[new_first] if len(new_first) else np.zeros(0, dtype=int)
+    refit = np.flatnonzero(kept_old < 0)
+    # samples of the segments to refit, per variable
+    samples_t, samples_var, samples_seg = [], [], []
+    for i in range(V):
+        mine = refit[seg_var[refit] == i]
+        if len(mine) == 0:
+            continue
+        kt = knots.t[knots.of(i)]
+        base = sample_times(track, i) if frame_t is None else np.asarray(frame_t, dtype=float)
+        st = np.unique(np.concatenate([base, old.knots.t[old.knots.of(i)]]))
+        seg, _ = _locate(kt, st)
+        gseg = seg + knots.seg_ptr[i]
+        take = np.isin(gseg, mine) & ~_near_knot(kt, st) & (st > kt[0]) & (st < kt[-1])
+        samples_t.append(st[take])
+        samples_var.append(np.full(int(take.sum()), i))
+        samples_seg.append(gseg[take])
+    D = track.dim
+    flat_t = np.concatenate(samples_t) if samples_t else np.zeros(0)
+    flat_var = np.concatenate(samples_var) if samples_var else np.zeros(0, dtype=int)
+    flat_seg = np.concatenate(samples_seg) if samples_seg else np.zeros(0, dtype=int)
+    values = evaluate_at(track, flat_var, flat_t, depth=1) if len(flat_t) else np.zeros((0, D))
+    # fit the changed segments together, numbered 0..len(refit)-1
+    local = np.full(len(new_first), -1)
+    local[refit] = np.arange(len(refit))
+    lseg = local[flat_seg]
+    seg_t0 = knots.t[new_first[refit]]
+    seg_t1 = knots.t[new_first[refit] + 1]
+    u = (flat_t - seg_t0[lseg]) / (seg_t1[lseg] - seg_t0[lseg]) if len(flat_t) else np.zeros(0)
+    p0, p3 = knots.v[new_first[refit]], knots.v[new_first[refit] + 1]
+    a_new, b_new, d_new = _fit_segments(track.kind, p0, p3, lseg, u, values, len(refit))
+    tan_a = np.zeros((len(new_first), 3))
+    tan_b = np.zeros((len(new_first), 3))
+    kept = np.flatnonzero(kept_old >= 0)
+    tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
+    tan_a[refit], tan_b[refit] = a_new, b_new
+    # displacement samples: the kept segments' own (re-indexed), the refitted ones' new
+    old_owner = np.repeat(np.arange(V), np.diff(old.samp_ptr))
+    old_local = np.floor(old.samp_s).astype(int)
+    old_local = np.minimum(old_local, np.maximum(np.diff(old.knots.ptr)[old_owner] - 2, 0))
+    old_gseg = old_local + old.knots.seg_ptr[old_owner]
+    old_to_new = np.full(int(old.knots.seg_ptr[-1]), -1)
+    old_to_new[kept_old[kept]] = kept
+    new_of_sample = old_to_new[old_gseg] if len(old_gseg) else np.zeros(0, dtype=int)
+    carry = new_of_sample >= 0
+    carried_seg = new_of_sample[carry]
+    carried_s = old.samp_s[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
+    fresh_seg = flat_seg
+    fresh_s = (fresh_seg - knots.seg_ptr[flat_var]) + u
+    all_var = np.concatenate([old_owner[carry], flat_var])
+    all_s = np.concatenate([carried_s, fresh_s])
+    all_d = np.concatenate([old.samp_d[carry], d_new]) if len(all_var) else np.zeros((0, D))
+    o = np.lexsort((all_s, all_var))
+    samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(all_var, minlength=V))]).astype(int)
+    layer = Layer(knots, tan_a, tan_b, samp_ptr, all_s[o], all_d[o])
+    return track.with_base(layer)
+
+
+def _unchanged_segments(old: Knots, new: Knots) -> np.ndarray:
+    """For each segment of ``new``, the index of the segment of ``old`` that
+    has the same two knots (variable, times and values exactly), else -1."""
+    new_first = _segment_first_knots(new)
+    out = np.full(len(new_first), -1)
+    old_first = _segment_first_knots(old)
+    if len(new_first) == 0 or len(old_first) == 0:
+        return out
+    for i in range(new.n_vars):
+        ns = slice(int(new.seg_ptr[i]), int(new.seg_ptr[i + 1]))
+        os_ = slice(int(old.seg_ptr[i]), int(old.seg_ptr[i + 1]))
+        if ns.stop == ns.start or os_.stop == os_.start:
+            continue
+        o0 = old.t[old_first[os_]]
+        n0 = new.t[new_first[ns]]
+        j = np.clip(np.searchsorted(o0, n0), 0, len(o0) - 1)
+        cand = old_first[os_][j]
+        nf = new_first[ns]
+        same = (
+            (old.t[cand] == new.t[nf])
+            & (old.t[cand + 1] == new.t[nf + 1])
+            & np.all(old.v[cand] == new.v[nf], axis=1)
+            & np.all(old.v[cand + 1] == new.v[nf + 1], axis=1)
+        )
+        out[np.arange(ns.start, ns.stop)[same]] = (os_.start + j)[same]
+    return out
+
+
+def pose_arrays(track: Track, n_poses: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pose-level view of a layer: extreme knot times (K, V), extreme values
+    (K, V, D), editing values (K, V, D) (equal to the extreme value where there
+    is no editing knot)."""
+    knots = track.layers[layer].knots
+    V = track.n_vars
+    var = knots.var
+    ext = ~knots.editing
     ext_t = np.full((n_poses, V), np.nan)
-    ext_t[track.knot_pose[ext], var[ext]] = track.knot_t[ext]
+    ext_t[knots.pose[ext], var[ext]] = knots.t[ext]
     value = np.zeros((n_poses, V, track.dim))
-    value[track.knot_pose[ext], var[ext]] = track.knot_v[ext]
+    value[knots.pose[ext], var[ext]] = knots.v[ext]
     edit = value.copy()
-    ed = track.knot_editing
-    edit[track.knot_pose[ed], var[ed]] = track.knot_v[ed]
+    ed = knots.editing
+    edit[knots.pose[ed], var[ed]] = knots.v[ed]
     return ext_t, value, edit

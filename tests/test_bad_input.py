@@ -32,8 +32,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from staggered_cli.cli.main import COMMANDS, cli
-from staggered_cli.document import from_parts
-from staggered_cli.io.document import MANIFEST_MEMBER, parse_document
+from staggered_cli.io.document import MANIFEST_MEMBER, from_parts, parse_document
 
 from .conftest import SAMPLES, mocap
 from .fuzz import mutate as mu
@@ -559,17 +558,17 @@ def _reencode(documents, name, change):
             "unknown or repeated channel",
         ),
         # an extreme knot turned into an editing knot: refinements became NaN (NaN in info --json)
-        ("march.bvh", lambda m, a: a["track1.knot_editing"].__setitem__(3, True), "one extreme knot per pose"),
+        ("march.bvh", lambda m, a: a["track1.layer0.knot_editing"].__setitem__(3, True), "one extreme knot per pose"),
         # infinite source points made bake fail in the C3D writer
         ("march.c3d", lambda m, a: a["source.points"].__setitem__((0, 0, 0), np.inf), "infinite"),
         # values whose squares overflow: RuntimeWarnings and inf in the baked file
-        ("march.bvh", lambda m, a: a["track0.knot_v"].__setitem__((3, 0), 1e300), "beyond"),
-        ("march.bvh", lambda m, a: a["track1.tan_a"].__setitem__((3, 0), -1e200), "beyond"),
+        ("march.bvh", lambda m, a: a["track0.layer0.knot_v"].__setitem__((3, 0), 1e300), "beyond"),
+        ("march.bvh", lambda m, a: a["track1.layer0.tan_a"].__setitem__((3, 0), -1e200), "beyond"),
         ("march.bvh", lambda m, a: a["source.channels"].__setitem__((3, 0), 1e300), "source.channels"),
         ("march.bvh", lambda m, a: m["bvh"]["offsets"][2].__setitem__(1, 1e300), "bvh offsets"),
         (
             "march.bvh",
-            lambda m, a: a["track0.knot_t"].__setitem__(a["track0.knot_ptr"][1] - 1, 99.0),
+            lambda m, a: a["track0.layer0.knot_t"].__setitem__(a["track0.layer0.knot_ptr"][1] - 1, 99.0),
             "outside the clip",
         ),
         # a source C3D that is not one: bake failed naming "source C3D of the motion"

@@ -10,9 +10,8 @@ from click.testing import CliRunner
 
 from staggered_cli import document as D
 from staggered_cli.cli.main import cli
-from staggered_cli.document import from_parts, to_parts
 from staggered_cli.io.bvh import parse_bvh, read_bvh
-from staggered_cli.io.document import document_bytes, parse_document
+from staggered_cli.io.document import document_bytes, from_parts, parse_document, to_parts
 
 from .conftest import SAMPLES, mocap, one_line_error
 

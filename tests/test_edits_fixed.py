@@ -23,11 +23,10 @@ from click.testing import CliRunner
 
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
-from staggered_cli.document import to_parts
 from staggered_cli.errors import DataError
 from staggered_cli.io.bvh import bvh_bytes, read_bvh
 from staggered_cli.io.c3d import read_c3d
-from staggered_cli.io.document import document_bytes
+from staggered_cli.io.document import document_bytes, to_parts
 from staggered_cli.ops import edit_pose as E
 from staggered_cli.ops import marker_chain, timing
 from staggered_cli.ops.bake import bake
@@ -341,7 +340,7 @@ def test_bake_warns_when_the_contact_layer_takes_back_an_edit(walk, tmp_path, ca
 
 
 def test_the_marker_tree_is_kept_in_the_document_and_checked_when_read():
-    from staggered_cli.document import from_parts
+    from staggered_cli.io.document import from_parts
 
     m, doc, _ = c3d_doc(EB015)
     edited = timing.succession(doc, 0.02, 1.0, chain=["PV1", "RTH1", "RSK1"], clamp=True)

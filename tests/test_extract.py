@@ -19,7 +19,7 @@ from staggered_cli import document as D
 from staggered_cli import signals as S
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import read_bvh
-from staggered_cli.io.document import document_bytes
+from staggered_cli.io.document import document_bytes, to_parts
 from staggered_cli.motion import BvhMotion, channels_from_local
 from staggered_cli.ops.extract import extract, refinement_frames
 
@@ -90,8 +90,8 @@ def test_c3d_extract_then_bake_reproduces_the_source(name):
 
 @pytest.mark.parametrize("name", ["bandai2_run_normal_001.bvh", "ezc3d_BTS_walk_gaps.c3d"])
 def test_extract_is_deterministic(name):
-    m1, a1 = D.to_parts(_extracted(name))
-    m2, a2 = D.to_parts(extract(_motion(name), source_name=name))
+    m1, a1 = to_parts(_extracted(name))
+    m2, a2 = to_parts(extract(_motion(name), source_name=name))
     assert json.dumps(m1, sort_keys=True) == json.dumps(m2, sort_keys=True)
     assert sorted(a1) == sorted(a2)
     for key in a1:

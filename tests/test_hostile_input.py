@@ -258,7 +258,7 @@ def test_the_cosine_basis_keeps_the_breaks(sigma):
 
 def test_a_document_value_the_bvh_cannot_hold_is_not_baked(run_doc, tmp_path):
     def huge(d):
-        d["arrays"]["track0.samp_d"]["values"][5] = 1e50  # documents allow up to 1e100
+        d["arrays"]["track0.layer0.samp_d"]["values"][5] = 1e50  # documents allow up to 1e100
 
     path = altered(run_doc, tmp_path, huge)
     out = tmp_path / "x.bvh"

@@ -390,8 +390,7 @@ def test_bad_input_is_refused():
 @pytest.fixture(scope="module")
 def run_doc(tmp_path_factory):
     from staggered_cli import document as D
-    from staggered_cli.document import to_parts
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io.document import document_bytes, to_parts
 
     c = load("bandai2_run_normal_001.bvh")
     m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
@@ -410,8 +409,7 @@ def cli_run(*args):
 
 
 def read_doc(path):
-    from staggered_cli.document import from_parts
-    from staggered_cli.io.document import parse_document
+    from staggered_cli.io.document import from_parts, parse_document
 
     return from_parts(*parse_document(path.read_bytes(), "test"))
 

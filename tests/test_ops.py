@@ -11,6 +11,7 @@ from staggered_cli import document as D
 from staggered_cli import quat
 from staggered_cli.errors import KnotOrderError, UsageError
 from staggered_cli.io.bvh import read_bvh
+from staggered_cli.io.document import to_parts
 from staggered_cli.motion import local_rotations_from_channels
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops import edit_pose as E
@@ -198,8 +199,8 @@ def test_randomize_is_reproducible_and_bounded(walk):
     a = timing.randomize(walk, tau, seed=4, joints=["RightArm"], subtree=True)
     b = timing.randomize(walk, tau, seed=4, joints=["RightArm"], subtree=True)
     c = timing.randomize(walk, tau, seed=5, joints=["RightArm"], subtree=True)
-    ma, aa = D.to_parts(a)
-    mb, ab = D.to_parts(b)
+    ma, aa = to_parts(a)
+    mb, ab = to_parts(b)
     assert ma == mb and all(np.array_equal(aa[k], ab[k]) for k in aa)
     shift = a.refinements() - walk.refinements()
     assert np.abs(shift).max() <= tau and np.abs(shift).max() > tau / 2

@@ -18,9 +18,8 @@ from staggered_cli import plots
 from staggered_cli.cli.main import cli
 from staggered_cli.cli.options import load_input
 from staggered_cli.cli.preview import join_at
-from staggered_cli.document import to_parts
 from staggered_cli.errors import UsageError
-from staggered_cli.io.document import document_bytes
+from staggered_cli.io.document import document_bytes, to_parts
 
 from .conftest import BVH_FILES, C3D_FILES, SAMPLES, mocap, one_line_error
 

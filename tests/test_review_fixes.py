@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import document as D
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.c3d import read_c3d
+from staggered_cli.io.document import from_parts, to_parts
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.extract import extract
@@ -36,8 +36,8 @@ def test_adding_a_pose_inside_a_staggered_span_makes_room(run, caplog):
         added = cull.add_pose(doc, 1.1179)
     assert "collapse to 0" in caplog.text
     assert added.n_poses == doc.n_poses + 1
-    manifest, arrays = D.to_parts(added)
-    D.from_parts(manifest, arrays)
+    manifest, arrays = to_parts(added)
+    from_parts(manifest, arrays)
     assert np.abs(bake(added, ik=False).channels - m.channels).max() < 1e-6
 
 
@@ -113,8 +113,8 @@ def test_contacts_move_with_a_retimed_pose(walk):
     old = {(x.joint, x.start) for x in doc.constraints}
     shifted = [x for x in moved.constraints if (x.joint, x.start) not in old]
     assert shifted and all(x.source_span != (x.start, x.end) for x in shifted)
-    manifest, arrays = D.to_parts(moved)
-    assert D.from_parts(manifest, arrays).constraints == moved.constraints
+    manifest, arrays = to_parts(moved)
+    assert from_parts(manifest, arrays).constraints == moved.constraints
     # the unedited parts keep their constraints and the bake stays finite
     assert np.all(np.isfinite(bake(moved).channels))
 
@@ -148,8 +148,7 @@ def test_a_constraint_added_by_hand_pins_its_joint(walk, tmp_path):
     from click.testing import CliRunner
 
     from staggered_cli.cli.main import cli
-    from staggered_cli.document import to_parts
-    from staggered_cli.io.document import document_bytes, parse_document
+    from staggered_cli.io.document import document_bytes, parse_document, to_parts
 
     m, doc = walk
     c = next(x for x in doc.constraints if x.joint == "LeftFoot" and x.end - x.start > 0.3)
@@ -175,7 +174,7 @@ def test_a_constraint_added_by_hand_pins_its_joint(walk, tmp_path):
         ],
     )
     assert r.exit_code == 0, r.stderr
-    pinned = D.from_parts(*parse_document(out.read_bytes(), str(out)))
+    pinned = from_parts(*parse_document(out.read_bytes(), str(out)))
     assert any(x.pin for x in pinned.constraints)
     baked = bake(pinned)
     from staggered_cli.motion import BvhMotion

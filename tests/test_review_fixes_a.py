@@ -13,9 +13,8 @@ from click.testing import CliRunner
 from staggered_cli import document as D
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
-from staggered_cli.document import from_parts, to_parts
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
-from staggered_cli.io.document import document_bytes, parse_document
+from staggered_cli.io.document import document_bytes, from_parts, parse_document, to_parts
 from staggered_cli.motion import BvhMotion, channels_from_local, local_rotations_from_channels
 from staggered_cli.ops import edit_pose as E
 from staggered_cli.ops.extract import extract

@@ -13,7 +13,7 @@ from .options import check_output, document_format, emit, load_document
 
 def read_document(path: str):
     """The :class:`~staggered_cli.document.Document` in ``path`` (``-``: stdin)."""
-    from ..document import from_parts
+    from ..io.document import from_parts
     from ..io.files import display_name
 
     manifest, arrays = load_document(path)
@@ -25,8 +25,7 @@ def read_document(path: str):
 
 def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
     """Serialize ``doc`` and write it atomically (or to stdout)."""
-    from ..document import to_parts
-    from ..io.document import document_bytes
+    from ..io.document import document_bytes, to_parts
 
     manifest, arrays = to_parts(doc)
     emit(output, document_bytes(manifest, arrays, document_format(fmt, output)), force)

@@ -11,6 +11,14 @@ from .options import force_option, format_option, input_argument, on_option, out
 @click.command("edit-pose")
 @input_argument
 @click.option("--pose", "pose", type=int, help="Pose index, as `info --json` reports it.")
+@click.option(
+    "--layer",
+    type=int,
+    default=0,
+    show_default=True,
+    metavar="L",
+    help="Edit pose K of layer L (0: the base layer's staggered poses; see `staggered layer`).",
+)
 @on_option("Edit")
 @click.option(
     "--rotate",
@@ -36,7 +44,12 @@ from .options import force_option, format_option, input_argument, on_option, out
     metavar="prev|next|average|K",
     help="Reference pose for --exaggerate.",
 )
-@click.option("--joints", metavar="A,B", help="Restrict --exaggerate and --from-bvh to these joints.")
+@click.option(
+    "--ease",
+    metavar="X",
+    help="Scale the inner spline controls on both sides of the pose: 1 = unchanged, 0 = linear, above 1 = hold longer.",
+)
+@click.option("--joints", metavar="A,B", help="Restrict --exaggerate, --from-bvh and --ease to these joints.")
 @click.option("--subtree", is_flag=True, help="With --joints: include their descendants.")
 @click.option(
     "--from-bvh", "from_bvh", metavar="FILE", help="Set the pose from a frame of a BVH with the same skeleton."
@@ -61,11 +74,13 @@ from .options import force_option, format_option, input_argument, on_option, out
 def edit_pose(
     input_path,
     pose,
+    layer,
     on,
     rotate,
     translate,
     exaggerate,
     relative_to,
+    ease,
     joints,
     subtree,
     from_bvh,
@@ -86,6 +101,7 @@ def edit_pose(
     rot = triples(rotate, "--rotate")
     tra = triples(translate, "--translate")
     w = finite(exaggerate, "--exaggerate") if exaggerate is not None else None
+    x = finite(ease, "--ease") if ease is not None else None
     if new_time is not None and shift is not None:
         raise click.UsageError("give --time or --shift, not both")
     if subtree and not joints:
@@ -93,7 +109,7 @@ def edit_pose(
     if all_poses:
         if from_bvh is None or pose is not None or frame is not None:
             raise click.UsageError("--all needs --from-bvh, and no --pose or --frame")
-        if rot or tra or w is not None or new_time is not None or shift is not None or root:
+        if rot or tra or w is not None or x is not None or new_time is not None or shift is not None or root or layer:
             raise click.UsageError("--all goes with --from-bvh, --on, --joints and --subtree only")
         return _apply_all(input_path, from_bvh, on, joints, subtree, output, force, fmt)
     if pose is None:
@@ -102,12 +118,19 @@ def edit_pose(
         raise click.UsageError("--from-bvh and --frame go together")
     if root and from_bvh is None:
         raise click.UsageError("--root goes with --from-bvh")
-    if not (rot or tra or w is not None or from_bvh or new_time is not None or shift is not None):
-        raise click.UsageError("nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --time or --shift")
+    if not (rot or tra or w is not None or x is not None or from_bvh or new_time is not None or shift is not None):
+        raise click.UsageError(
+            "nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --ease, --time or --shift"
+        )
+    if joints and w is None and from_bvh is None and x is None:
+        raise click.UsageError(
+            "--joints restricts --exaggerate, --from-bvh and --ease (--rotate and --translate name their own joints)"
+        )
     doc = read_document(input_path)
-    from ..document import check_pose_index
+    from ..ops.layers import check_layer_pose
+    from ..ops.layers import ease as ease_op
 
-    k = check_pose_index(doc, pose)
+    k = check_layer_pose(doc, layer, pose)
     values = None
     if from_bvh is not None:
         from ..errors import StaggeredError
@@ -131,10 +154,20 @@ def edit_pose(
         subtree=subtree,
         values=values,
         root=root,
+        layer=layer,
     )
+    if x is not None:
+        masks = ops.joint_mask(doc, name_list(joints), subtree) if joints else None
+        doc = ease_op(doc, k, x, layer=layer, masks=masks)
     if new_time is not None or shift is not None:
-        t = finite(new_time, "--time") if new_time is not None else doc.pose_t[k] + finite(shift, "--shift")
-        doc = retime_pose(doc, k, t)
+        t0 = doc.poses_of(layer)[k]
+        t = finite(new_time, "--time") if new_time is not None else t0 + finite(shift, "--shift")
+        if layer:
+            from ..ops.layers import retime_layer_pose
+
+            doc = retime_layer_pose(doc, layer, k, t)
+        else:
+            doc = retime_pose(doc, k, t)
     write_document(doc, output, fmt, force)
 
 

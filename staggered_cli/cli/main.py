@@ -48,6 +48,8 @@ COMMANDS: dict[str, str] = {
     "cull": "staggered_cli.cli.cull:cull",
     "constraints": "staggered_cli.cli.constraints:constraints",
     "edit-pose": "staggered_cli.cli.edit_pose:edit_pose",
+    "layer": "staggered_cli.cli.layer:layer",
+    "detail": "staggered_cli.cli.detail:detail",
     "succession": "staggered_cli.cli.succession:succession",
     "randomize": "staggered_cli.cli.randomize:randomize",
     "bake": "staggered_cli.cli.bake:bake",

@@ -59,7 +59,7 @@ def parse_at(value: str | None) -> tuple[str | None, int | None]:
 
 def _subject(path: str):
     """A document (as :class:`~staggered_cli.document.Document`) or a clip."""
-    from ..document import from_parts
+    from ..io.document import from_parts
     from ..io.files import display_name
 
     obj = load_input(path)

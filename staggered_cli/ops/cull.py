@@ -127,7 +127,7 @@ def document_proxy(doc: Document) -> tuple[placement.Proxy, np.ndarray]:
     t = doc.frame_times
     variables, ext = [], []
     for tr in doc.tracks:
-        dense = evaluate(tr, t)
+        dense = evaluate(tr, t, depth=1)
         if tr.kind == ROTATION:
             dense = quat.unroll(dense, axis=0)
         variables.append((tr.kind, tr.names, tr.targets, dense))
@@ -204,11 +204,8 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
     new_index = np.cumsum(mask) - 1
     tracks = []
     for tr in doc.tracks:
-        k = mask[tr.knot_pose]
-        var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
-        ptr = np.concatenate([[0], np.cumsum(np.bincount(var[k], minlength=tr.n_vars))])
-        knots = (ptr, tr.knot_t[k], tr.knot_v[k], new_index[tr.knot_pose[k]], tr.knot_editing[k])
-        tracks.append(restructure(tr, *knots, frame_t=doc.frame_times))
+        knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
+        tracks.append(restructure(tr, knots, frame_t=doc.frame_times))
     signals = dict(doc.signals)
     return reprioritized(
         doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
@@ -246,7 +243,7 @@ def add_pose(doc: Document, time: float) -> Document:
             )
         refine = np.where(conflict, 0.0, refine)
         value = np.where(conflict[..., None], edit, value)
-        here = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time))
+        here = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time), depth=1)
         knots = knots_from_poses(
             pose_t,
             np.insert(refine, k_new, 0.0, axis=0),
@@ -254,6 +251,6 @@ def add_pose(doc: Document, time: float) -> Document:
             np.insert(edit, k_new, here, axis=0),
             tr.names,
         )
-        tracks.append(restructure(tr, *knots, frame_t=doc.frame_times))
+        tracks.append(restructure(tr, knots, frame_t=doc.frame_times))
     priority = np.insert(doc.priority, k_new, 0.0)
     return reprioritized(doc.with_tracks(tuple(tracks), pose_t=pose_t, priority=priority))

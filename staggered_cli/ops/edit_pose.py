@@ -14,12 +14,10 @@ rides along.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from .. import quat
-from ..document import Document, check_pose_index
+from ..document import Document
 from ..errors import DataError, UsageError
 from ..representation import ROTATION, TRANSLATION, Track, evaluate, pose_arrays
 
@@ -80,7 +78,7 @@ def _apply_delta(doc: Document, k: int, deltas: list[np.ndarray | None], on: str
         knot_v[mine] = _oplus(tr.kind, tr.knot_v[mine], d[var[mine]])
         if tr.kind == ROTATION:
             knot_v = quat.normalize(knot_v)
-        tracks.append(replace(tr, knot_v=knot_v))
+        tracks.append(tr.with_knot_values(knot_v))
     return doc.with_tracks(tuple(tracks))
 
 
@@ -163,6 +161,7 @@ def edit_pose(
     subtree: bool = False,
     values: list[np.ndarray] | None = None,
     root: bool = False,
+    layer: int = 0,
 ) -> Document:
     """Geometric edit of pose ``k``.
 
@@ -182,21 +181,44 @@ def edit_pose(
         where ``joints`` allows.  The pose keeps its place and heading (see
         :func:`_keep_place`) unless ``root``.
     joints, subtree : restrict exaggeration and ``values`` to part of the body.
+    layer : edit pose ``k`` of this layer (0: the base layer's staggered
+        poses).  On a layer above the base the pose is what the whole stack
+        gives at the layer's pose time, and the change goes into that
+        layer's offsets (:func:`staggered_cli.ops.layers.apply_offset`).
     """
+    from . import layers
+
     if on not in ("true", "extreme"):
         raise UsageError(f"--on must be 'true' or 'extreme', got {on!r}")
-    k = check_pose_index(doc, k)
+    k = layers.check_layer_pose(doc, layer, k)
+    times = doc.poses_of(layer)
+    if layer:
+
+        def values_at(d: Document, kk: int) -> list[np.ndarray]:
+            return layers.pose_values(d, layer, kk)
+
+        def apply(d: Document, deltas: list[np.ndarray | None]) -> Document:
+            return layers.apply_offset(d, layer, k, deltas)
+
+    else:
+
+        def values_at(d: Document, kk: int) -> list[np.ndarray]:
+            return pose_values(d, kk, on)
+
+        def apply(d: Document, deltas: list[np.ndarray | None]) -> Document:
+            return _apply_delta(d, k, deltas, on)
+
     rotate = rotate or {}
     translate = translate or {}
     if rotate or translate:
-        doc = _apply_delta(doc, k, offsets(doc, rotate, translate), on)
+        doc = apply(doc, offsets(doc, rotate, translate))
     if exaggerate is not None:
         if not np.isfinite(exaggerate) or abs(exaggerate) > MAX_EXAGGERATE:
             raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
-        ref = reference_values(doc, k, relative_to, on)
-        cur = pose_values(doc, k, on)
+        ref = _reference(doc, k, relative_to, len(times), lambda kk: values_at(doc, kk))
+        cur = values_at(doc, k)
         if doc.kind == "c3d":
-            cur, ref = _marker_shapes(doc, k, cur, ref)
+            cur, ref = _marker_shapes(doc, times[k], cur, ref)
         mask = exaggeration_mask(doc, joints, subtree)
         deltas = []
         for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
@@ -205,10 +227,10 @@ def edit_pose(
             d[~m] = 0.0 if tr.kind == TRANSLATION else quat.identity()
             deltas.append(d)
         if doc.kind == "c3d" and not joints:
-            deltas = [_planted_held(doc, k, deltas[0])]
-        doc = _apply_delta(doc, k, deltas, on)
+            deltas = [_planted_held(doc, times, k, deltas[0])]
+        doc = apply(doc, deltas)
     if values is not None:
-        cur = pose_values(doc, k, on)
+        cur = values_at(doc, k)
         mask = joint_mask(doc, joints, subtree)
         if not root and doc.kind == "bvh":
             values = _keep_place(doc, cur, values)
@@ -217,7 +239,7 @@ def edit_pose(
             d = _ominus(tr.kind, v, c)
             d[~m] = 0.0 if tr.kind == TRANSLATION else quat.identity()
             deltas.append(d)
-        doc = _apply_delta(doc, k, deltas, on)
+        doc = apply(doc, deltas)
     return doc
 
 
@@ -293,13 +315,13 @@ def _keep_place(doc: Document, cur: list[np.ndarray], values: list[np.ndarray]) 
 
 
 def _marker_shapes(
-    doc: Document, k: int, cur: list[np.ndarray], ref: list[np.ndarray]
+    doc: Document, t: float, cur: list[np.ndarray], ref: list[np.ndarray]
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """C3D: the pose and the reference as shapes, each relative to its own
     body centre (the centroid of the markers captured at the pose's frame,
     gaps ignored), so that exaggerating scales the shape and not the place:
     the changes the edit makes then sum to zero over those markers."""
-    frame = int(np.clip(np.rint(doc.pose_t[k] / doc.frame_time), 0, doc.n_frames - 1))
+    frame = int(np.clip(np.rint(t / doc.frame_time), 0, doc.n_frames - 1))
     seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
     if not seen.any():
         seen[:] = True
@@ -307,7 +329,7 @@ def _marker_shapes(
     return [cur[0] - centre], [ref[0] - ref[0][seen].mean(axis=0)]
 
 
-def _planted_held(doc: Document, k: int, delta: np.ndarray) -> np.ndarray:
+def _planted_held(doc: Document, times: np.ndarray, k: int, delta: np.ndarray) -> np.ndarray:
     """C3D: the changes (M, 3) of a whole-body exaggeration with the markers
     planted while the edit acts (a contact constraint overlapping the span
     between the neighbouring poses) held where they are, and the others
@@ -315,9 +337,9 @@ def _planted_held(doc: Document, k: int, delta: np.ndarray) -> np.ndarray:
     seen at the pose: the contact layer of ``bake`` would hold the planted
     ones anyway, and the body's centre would then move."""
     labels = list(doc.target_names)
-    t = doc.pose_t[k]
-    lo = doc.pose_t[max(k - 1, 0)]
-    hi = doc.pose_t[min(k + 1, doc.n_poses - 1)]
+    t = times[k]
+    lo = times[max(k - 1, 0)]
+    hi = times[min(k + 1, len(times) - 1)]
     planted = np.zeros(len(labels), dtype=bool)
     for c in doc.constraints:
         if c.joint in labels and c.start < hi and c.end > lo:
@@ -337,25 +359,33 @@ def _planted_held(doc: Document, k: int, delta: np.ndarray) -> np.ndarray:
 
 def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[np.ndarray]:
     """Per track (V, D) values of the reference pose for exaggeration."""
+    return _reference(doc, k, relative_to, doc.n_poses, lambda r: pose_values(doc, r, on))
+
+
+def _reference(doc: Document, k: int, relative_to: str, n_poses: int, values_at) -> list[np.ndarray]:
+    """The reference pose of pose ``k`` among ``n_poses`` (``values_at(r)``
+    gives pose ``r``'s values)."""
     key = str(relative_to).strip().lower()
     if key == "average":
         return average_pose(doc)
     if key == "prev":
         if k == 0:
             raise UsageError("pose 0 has no previous pose to exaggerate against")
-        return pose_values(doc, k - 1, on)
+        return values_at(k - 1)
     if key == "next":
-        if k == doc.n_poses - 1:
+        if k == n_poses - 1:
             raise UsageError(f"pose {k} is the last; it has no next pose to exaggerate against")
-        return pose_values(doc, k + 1, on)
+        return values_at(k + 1)
     try:
         r = int(key)
     except ValueError:
         raise UsageError(f"--relative-to takes prev, next, average or a pose index, got {relative_to!r}") from None
-    r = check_pose_index(doc, r)
+    if not -n_poses <= r < n_poses:
+        raise UsageError(f"pose {r} is out of range (the document has poses 0 to {n_poses - 1})")
+    r %= n_poses
     if r == k:
         raise UsageError("a pose cannot be exaggerated relative to itself")
-    return pose_values(doc, r, on)
+    return values_at(r)
 
 
 def values_from_motion(

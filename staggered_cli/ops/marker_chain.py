@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..representation import TRANSLATION, Track, evaluate_at, fit_track
+from ..representation import TRANSLATION, Layer, Track, evaluate_at, fit_layer
 
 #: Frames (evenly spread) that judge how rigid a pair of markers is: enough
 #: for the spread of a distance, and (frames x markers²) stays small.
@@ -120,7 +120,7 @@ def recomposed(
     var_k = np.repeat(np.arange(track.n_vars), np.diff(track.knot_ptr))
     t = np.unique(np.concatenate([frame_t, track.knot_t[np.isin(var_k, involved)]]))
     values = np.zeros((len(t), track.n_vars, 3))
-    flat = evaluate_at(track, np.repeat(involved, len(t)), np.tile(t, len(involved)))
+    flat = evaluate_at(track, np.repeat(involved, len(t)), np.tile(t, len(involved)), depth=1)
     values[:, involved] = flat.reshape(len(involved), len(t), 3).transpose(1, 0, 2)
     out = values.copy()
     if to_offsets and seen is not None and not seen.all():
@@ -131,7 +131,7 @@ def recomposed(
     samples_t, samples_v = [], []
     knot_v = track.knot_v.copy()
     for i in range(track.n_vars):
-        kt = track.knot_t[track.knots(i)]
+        kt = track.knot_t[track.knot_slice(i)]
         if i in keep:  # refitted from nothing, then taken back from ``track``
             samples_t.append(np.zeros(0))
             samples_v.append(np.zeros((0, 3)))
@@ -140,20 +140,9 @@ def recomposed(
         rows = np.searchsorted(t, st)
         samples_t.append(st)
         samples_v.append(out[rows, i])
-        knot_v[track.knots(i)] = out[np.searchsorted(t, kt), i]
-    fitted = fit_track(
-        track.kind,
-        track.names,
-        track.targets,
-        track.knot_ptr,
-        track.knot_t,
-        knot_v,
-        track.knot_pose,
-        track.knot_editing,
-        samples_t,
-        samples_v,
-    )
-    return _with_variables(fitted, track, keep)
+        knot_v[track.knot_slice(i)] = out[np.searchsorted(t, kt), i]
+    fitted = fit_layer(track.kind, track.knots.with_values(knot_v), samples_t, samples_v)
+    return track.with_base(_with_variables(fitted, track.base, keep))
 
 
 def _seen_at(seen: np.ndarray, frame_t: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -181,17 +170,17 @@ def _gaps_filled_down_the_tree(
     return out
 
 
-def _with_variables(new: Track, old: Track, keep: np.ndarray) -> Track:
+def _with_variables(new: Layer, old: Layer, keep: np.ndarray) -> Layer:
     """``new`` with the variables ``keep`` taken from ``old`` (same knots)."""
     if len(keep) == 0:
         return new
-    var_k = np.repeat(np.arange(new.n_vars), np.diff(new.knot_ptr))
-    seg_var = np.repeat(np.arange(new.n_vars), np.diff(new.seg_ptr))
-    knot_v = np.where(np.isin(var_k, keep)[:, None], old.knot_v, new.knot_v)
+    V = new.knots.n_vars
+    seg_var = np.repeat(np.arange(V), np.diff(new.knots.seg_ptr))
+    knot_v = np.where(np.isin(new.knots.var, keep)[:, None], old.knots.v, new.knots.v)
     tan_a = np.where(np.isin(seg_var, keep)[:, None], old.tan_a, new.tan_a)
     tan_b = np.where(np.isin(seg_var, keep)[:, None], old.tan_b, new.tan_b)
     s_parts, d_parts, counts = [], [], []
-    for i in range(new.n_vars):
+    for i in range(V):
         src = old if i in keep else new
         sl = src.samples(i)
         s_parts.append(src.samp_s[sl])
@@ -200,7 +189,7 @@ def _with_variables(new: Track, old: Track, keep: np.ndarray) -> Track:
     samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
     return replace(
         new,
-        knot_v=knot_v,
+        knots=new.knots.with_values(knot_v),
         tan_a=tan_a,
         tan_b=tan_b,
         samp_ptr=samp_ptr,

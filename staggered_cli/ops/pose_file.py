@@ -19,7 +19,7 @@ from .. import quat
 from ..document import Document, reference_channels, require_bvh, variable_layout
 from ..errors import DataError, UsageError
 from ..motion import BvhMotion, channels_from_local
-from ..representation import ROTATION, TRANSLATION, Track, knots_from_poses, pose_arrays
+from ..representation import ROTATION, TRANSLATION, Layer, Track, knots_from_poses, pose_arrays
 from .edit_pose import joint_mask
 
 #: What counts as a change when a pose file comes back (issue 15).
@@ -204,9 +204,7 @@ def apply_pose_file(
 
 
 def _with_knot_values(tr: Track, knot_v: np.ndarray) -> Track:
-    from dataclasses import replace
-
-    return replace(tr, knot_v=knot_v)
+    return tr.with_knot_values(knot_v)
 
 
 # --- new motion from key poses -------------------------------------------------
@@ -286,7 +284,7 @@ def _key_track(kind: str, names, targets, t: np.ndarray, keys: np.ndarray) -> Tr
     """A track with one unrefined knot per key, blocking tangents and empty
     displacement maps (keys (K, V, D))."""
     K, V = keys.shape[:2]
-    ptr, knot_t, knot_v, knot_pose, knot_editing = knots_from_poses(t, np.zeros((K, V)), keys, keys, names)
+    knots = knots_from_poses(t, np.zeros((K, V)), keys, keys, names)
     if kind == TRANSLATION:
         a, b = blocking_translation_tangents(t, keys)
     else:
@@ -295,21 +293,9 @@ def _key_track(kind: str, names, targets, t: np.ndarray, keys: np.ndarray) -> Tr
     a = np.transpose(a, (1, 0, 2)).reshape(-1, 3)
     b = np.transpose(b, (1, 0, 2)).reshape(-1, 3)
     d = keys.shape[-1]
-    return Track(
-        kind,
-        tuple(names),
-        np.asarray(targets, dtype=int),
-        ptr,
-        knot_t,
-        knot_v,
-        knot_pose,
-        knot_editing,
-        a,
-        b,
-        np.zeros(V + 1, dtype=int),
-        np.zeros(0),
-        np.zeros((0, d)),
-    )
+    empty = np.zeros(V + 1, dtype=int)
+    layer = Layer(knots, a, b, empty, np.zeros(0), np.zeros((0, d)))
+    return Track(kind, tuple(names), np.asarray(targets, dtype=int), (layer,))
 
 
 def new_document(

@@ -187,15 +187,15 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     new_ext = doc.pose_t[:, None] + new_refine
     warped_t = tr.knot_t.copy()
     for i in range(tr.n_vars):
-        sl = tr.knots(i)
+        sl = tr.knot_slice(i)
         warped_t[sl] = np.interp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
     warped = with_knot_times(tr, warped_t)
     kk, ii = np.nonzero(new_refine != 0.0)
     edit = value.copy()
     if len(kk):
-        edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk])
+        edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk], depth=1)
     knots = knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names)
-    return restructure(warped, *knots, frame_t=doc.frame_times), old_ext, new_ext
+    return restructure(warped, knots, frame_t=doc.frame_times), old_ext, new_ext
 
 
 def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:

@@ -883,7 +883,7 @@ def _track_names(b: DocBase) -> list[int]:
 def doc_crossing_knots(b: DocBase, rng: random.Random, fmt: str) -> Case:
     manifest, arrays = _parts(b)
     n = rng.choice(_track_names(b))
-    ptr, kt = arrays[f"track{n}.knot_ptr"], arrays[f"track{n}.knot_t"].copy()
+    ptr, kt = arrays[f"track{n}.layer0.knot_ptr"], arrays[f"track{n}.layer0.knot_t"].copy()
     var = rng.randrange(len(ptr) - 1)
     lo, hi = int(ptr[var]), int(ptr[var + 1])
     j = rng.randrange(lo, hi - 1)
@@ -894,14 +894,14 @@ def doc_crossing_knots(b: DocBase, rng: random.Random, fmt: str) -> Case:
         kt[j + 1] = kt[j]
     else:
         kt[j] = kt[j + 1] + rng.uniform(1e-6, 1.0)
-    arrays[f"track{n}.knot_t"] = kt
+    arrays[f"track{n}.layer0.knot_t"] = kt
     return Case(f"knots:{action}", _encode(manifest, arrays, fmt), True)
 
 
 def doc_version(b: DocBase, rng: random.Random, fmt: str) -> Case:
     manifest, arrays = _parts(b)
     where = rng.choice(["manifest", "envelope"])
-    value = rng.choice([0, 2, 99, -1, "1", 1.0, None, True, [1]])
+    value = rng.choice([0, 3, 99, -1, "1", 1.0, None, True, [1]])
     if where == "manifest":
         manifest["version"] = value
         data = _encode(manifest, arrays, fmt)
@@ -948,14 +948,14 @@ def doc_bad_values(b: DocBase, rng: random.Random, fmt: str) -> Case:
         [
             "pose_t",
             "priority",
-            f"track{n}.knot_t",
-            f"track{n}.knot_v",
-            f"track{n}.tan_a",
-            f"track{n}.samp_s",
-            f"track{n}.samp_d",
-            f"track{n}.knot_pose",
-            f"track{n}.knot_ptr",
-            f"track{n}.samp_ptr",
+            f"track{n}.layer0.knot_t",
+            f"track{n}.layer0.knot_v",
+            f"track{n}.layer0.tan_a",
+            f"track{n}.layer0.samp_s",
+            f"track{n}.layer0.samp_d",
+            f"track{n}.layer0.knot_pose",
+            f"track{n}.layer0.knot_ptr",
+            f"track{n}.layer0.samp_ptr",
         ]
     )
     a = arrays[key].copy()
