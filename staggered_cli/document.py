@@ -31,6 +31,8 @@ from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate,
 #: Bounds of a resampled bake: no motion is captured finer than this.
 MAX_FPS_FACTOR = 100
 MAX_OUTPUT_FRAMES = 10_000_000
+#: Most layers a document may stack.
+MAX_LAYERS = 64
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import quat
+from . import quat, splines
 
 TRANSLATION = "translation"
 ROTATION = "rotation"
@@ -34,7 +34,10 @@ class KindOps:
 
     ``oplus(a, b)``, ``ominus(c, a)``, ``scale(d, w)`` (``w`` a float or an
     array broadcasting against the leading axes), ``interpolate(a, b, u)``
-    (``u`` against the leading axes), ``identity(shape)`` and ``dim``.
+    (``u`` against the leading axes), ``identity(shape)`` and ``dim``; and
+    the kind's cubic segments (:mod:`splines`): ``spline_at(p0, a, b, p3,
+    seg, u)`` evaluates segments ``seg`` at ``u``, ``linear_controls(p0, p3)``
+    gives the inner controls of the uniform-speed segment.
     """
 
     kind: str
@@ -44,6 +47,8 @@ class KindOps:
     scale: Callable[[np.ndarray, np.ndarray | float], np.ndarray]
     interpolate: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     identity: Callable[[tuple[int, ...]], np.ndarray]
+    spline_at: Callable[..., np.ndarray]
+    linear_controls: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 def _weights(w, lead: int) -> np.ndarray:
@@ -84,6 +89,8 @@ TRANSLATION_OPS = KindOps(
     scale=_t_scale,
     interpolate=_t_interpolate,
     identity=_t_identity,
+    spline_at=splines.bezier_eval_at,
+    linear_controls=splines.default_translation_tangents,
 )
 
 ROTATION_OPS = KindOps(
@@ -94,6 +101,8 @@ ROTATION_OPS = KindOps(
     scale=_r_scale,
     interpolate=_r_interpolate,
     identity=quat.identity,
+    spline_at=splines.rotation_eval_at,
+    linear_controls=splines.default_rotation_tangents,
 )
 
 _OPS = {TRANSLATION: TRANSLATION_OPS, ROTATION: ROTATION_OPS}

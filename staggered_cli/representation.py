@@ -557,16 +557,14 @@ def layer_at(
         return knots.v[knots.ptr[var]]
     first = _segment_first_knots(knots)
     p0, p3 = knots.v[first], knots.v[first + 1]
-    if kind == TRANSLATION:
-        val = splines.bezier_eval_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
-    else:
-        val = splines.rotation_eval_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
+    ops = kinds.ops_for(kind)
+    val = ops.spline_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
     single = np.diff(knots.ptr)[var] < 2
     if np.any(single):
         val[single] = knots.v[knots.ptr[var[single]]]
     if not detail or not layer.has_detail:
         return val
-    return kinds.ops_for(kind).oplus(val, _displacement_at(kind, layer, s, order, bounds))
+    return ops.oplus(val, _displacement_at(kind, layer, s, order, bounds))
 
 
 def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from ..document import Constraint, Document, variable_layout
+from ..document import MAX_LAYERS, Constraint, Document, variable_layout
 from ..errors import DataError
 from ..motion import BvhMotion, MarkerMotion, frame_time_problem, rate_problem
 from ..representation import ROTATION, TRANSLATION, Knots, Layer, Track
@@ -54,8 +54,6 @@ FORMAT_NAME = "staggered-poses"
 FORMAT_VERSION = 1
 #: The schema's version (what the manifest and arrays mean): 2 has layers.
 DOCUMENT_VERSION = 2
-#: Most layers a document may stack.
-MAX_LAYERS = 64
 
 log = logging.getLogger(__name__)
 

@@ -24,8 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import quat, splines
-from ..document import Document
+from .. import quat
+from ..document import MAX_LAYERS, Document
 from ..errors import UsageError
 from ..representation import ROTATION, Track, evaluate_at, offset_layer, sample_times
 
@@ -76,8 +76,6 @@ def add_layer(doc: Document, pose_t: np.ndarray) -> Document:
     pose_t = np.asarray(pose_t, dtype=float)
     if len(pose_t) < 2 or pose_t[0] != 0.0 or abs(pose_t[-1] - doc.duration) > 1e-9 or np.any(np.diff(pose_t) <= 0):
         raise ValueError("a layer's poses run from the first frame to the last, strictly increasing")
-    from ..io.document import MAX_LAYERS
-
     if doc.n_layers >= MAX_LAYERS:
         raise UsageError(f"the document already has {doc.n_layers} layers (at most {MAX_LAYERS})")
     tracks = tuple(tr.with_layer(len(tr.layers), offset_layer(tr.kind, tr.n_vars, pose_t)) for tr in doc.tracks)
@@ -190,12 +188,6 @@ def retime_layer_pose(doc: Document, layer: int, k: int, new_time: float) -> Doc
 # --- transition controls ------------------------------------------------------
 
 
-def _linear_controls(kind: str, p0: np.ndarray, p3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    if kind == ROTATION:
-        return splines.default_rotation_tangents(p0, p3)
-    return splines.default_translation_tangents(p0, p3)
-
-
 def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndarray] | None = None) -> Document:
     """Scale the inner spline controls of the segments on both sides of pose
     ``k`` of ``layer`` about the linear ones: ``c = c_lin + x (c - c_lin)``.
@@ -223,7 +215,7 @@ def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndar
             tracks.append(tr)
             continue
         f = first[hit]
-        a_lin, b_lin = _linear_controls(tr.kind, knots.v[f], knots.v[f + 1])
+        a_lin, b_lin = tr.ops.linear_controls(knots.v[f], knots.v[f + 1])
         tan_a, tan_b = lay.tan_a.copy(), lay.tan_b.copy()
         tan_a[hit] = a_lin + x * (lay.tan_a[hit] - a_lin)
         tan_b[hit] = b_lin + x * (lay.tan_b[hit] - b_lin)
