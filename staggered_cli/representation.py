@@ -496,14 +496,22 @@ def evaluate(track: Track, t: np.ndarray, layers: str = "all", depth: int | None
     (N, V, D) values (unit quaternions w first for rotations).
     """
     t = np.asarray(t, dtype=float)
-    V = track.n_vars
-    var = np.broadcast_to(np.arange(V)[None, :], (len(t), V)).ravel()
+    V, N = track.n_vars, len(t)
+    var = np.broadcast_to(np.arange(V)[None, :], (N, V)).ravel()
     tt = np.repeat(t, V)
-    return evaluate_at(track, var, tt, layers, depth).reshape(len(t), V, track.dim)
+    # the queries grouped by variable without sorting: variable i's are i, i + V, ...
+    order = np.arange(N * V).reshape(N, V).T.ravel()
+    bounds = np.arange(V + 1) * N
+    return evaluate_at(track, var, tt, layers, depth, _grouped=(order, bounds)).reshape(N, V, track.dim)
 
 
 def evaluate_at(
-    track: Track, var: np.ndarray, t: np.ndarray, layers: str = "all", depth: int | None = None
+    track: Track,
+    var: np.ndarray,
+    t: np.ndarray,
+    layers: str = "all",
+    depth: int | None = None,
+    _grouped: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Values of variable ``var[n]`` at time ``t[n]``: (N, D), the layers
     folded bottom up (``v = l_0 ⊕ l_1 ⊕ ...``)."""
@@ -511,8 +519,11 @@ def evaluate_at(
         raise ValueError(f"layers must be 'all' or 'splines', got {layers!r}")
     var = np.asarray(var, dtype=int)
     t = np.asarray(t, dtype=float)
-    order = np.argsort(var, kind="stable")
-    bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
+    if _grouped is None:
+        order = np.argsort(var, kind="stable")
+        bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
+    else:
+        order, bounds = _grouped
     stack = track.layers if depth is None else track.layers[:depth]
     out = None
     for layer in stack:
