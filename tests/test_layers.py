@@ -343,3 +343,13 @@ def test_restructure_refits_only_what_changed(walk):
                 np.testing.assert_array_equal(new.tan_a[nj - i], tr.tan_a[g - i])
                 same += 1
     assert same > 0.8 * (len(tr.knot_t) - tr.n_vars)
+
+
+def test_export_poses_says_it_exports_the_base_layer(walk_file, tmp_path):
+    added = tmp_path / "added.stag"
+    assert run(["layer", str(walk_file), "--add", "--keep", "4", "-o", str(added)]).exit_code == 0
+    r = run(["export-poses", str(added), "-o", str(tmp_path / "poses.bvh")])
+    assert r.exit_code == 0, r.stderr
+    assert "export-poses works on the base layer's poses; the layer above it stays as it is" in r.stderr
+    plain = run(["export-poses", str(walk_file), "-o", str(tmp_path / "plain.bvh")])
+    assert plain.exit_code == 0 and "layer" not in plain.stderr

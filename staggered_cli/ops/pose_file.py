@@ -13,6 +13,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from .. import quat
@@ -28,6 +30,8 @@ TRANSLATION_CHANGED = 1e-5  # of figure height
 #: Offsets of a pose file must match the document's to this fraction of the
 #: figure height: float32 round trips (Blender) pass, an axis conversion fails.
 OFFSET_TOLERANCE = 1e-4
+
+log = logging.getLogger(__name__)
 
 
 def _on(on: str) -> str:
@@ -59,6 +63,7 @@ def export_poses(doc: Document, on: str = "true") -> BvhMotion:
     pose k), with the source's skeleton, channels, frame time and number
     format; Euler triples nearest the source's channels at t_k."""
     src = require_bvh(doc, "export-poses")
+    _warn_layers(doc, "export-poses")
     rot, tra = pose_locals(doc, on)
     ref = reference_channels(doc, doc.pose_t)
     # a pose on a source frame takes that frame's own numbers as the
@@ -71,6 +76,15 @@ def export_poses(doc: Document, on: str = "true") -> BvhMotion:
     # numbers (its -0 and last digit included), as bake does
     channels = np.where(np.abs(channels - ref) < 1e-9, ref, channels)
     return BvhMotion(src.skeleton, channels, src.frame_time, src.frame_time_text, src.number_format)
+
+
+def _warn_layers(doc: Document, what: str) -> None:
+    """One warning line when layers above the base change the motion: the
+    poses ``what`` works on are the base layer's, not what ``bake`` gives."""
+    if doc.n_layers > 1:
+        n = doc.n_layers - 1
+        above = "the layer above it stays" if n == 1 else f"the {n} layers above it stay"
+        log.warning("%s works on the base layer's poses; %s as it is (see `layer --list`)", what, above)
 
 
 def frame_note(doc: Document, name: str) -> str:
@@ -147,6 +161,7 @@ def apply_pose_file(
     moves a joint the document cannot move (no such channels); DataError
     when its skeleton differs (:func:`check_same_skeleton`).
     """
+    _warn_layers(doc, "edit-pose --all")
     _on(on)
     check_same_skeleton(doc, motion, name)
     if motion.n_frames != doc.n_poses:
