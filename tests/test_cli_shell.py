@@ -465,6 +465,7 @@ def test_detect_kind():
 
 def test_info_on_a_document_npz_and_json(tmp_path):
     from staggered_cli import document as representation
+    from staggered_cli.io.document import to_parts
 
     sample = ROOT / "data" / "samples" / "march.bvh"
     if not sample.exists():
@@ -472,7 +473,7 @@ def test_info_on_a_document_npz_and_json(tmp_path):
     motion = options.load_input(str(sample))
     end = (motion.n_frames - 1) * motion.frame_time
     doc = representation.from_motion(motion, np.array([0.0, 1.0, end]), source_name=sample.name)
-    manifest, arrays = representation.to_parts(doc)
+    manifest, arrays = to_parts(doc)
     for fmt in ("npz", "json"):
         path = tmp_path / f"march.{fmt}"
         path.write_bytes(document_bytes(manifest, arrays, fmt))
