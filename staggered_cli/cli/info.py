@@ -114,6 +114,14 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
+def _layer_cell(n: int, poses: list[dict]) -> str:
+    """``1: 6 poses at 0, 0.667, ... s`` (at most eight times shown)."""
+    times = [_cell(float(p["time"])) for p in poses]
+    shown = ", ".join(times[:7] + (["...", times[-1]] if len(times) > 8 else times[7:]))
+    base = " (base)" if n == 0 else ""
+    return f"{n}{base}: {len(poses)} poses at {shown} s"
+
+
 def format_table(summary: dict[str, Any]) -> str:
     """Two aligned columns, key and value, the main keys first; a list of
     records (a document's poses, say) gets its count, then one line each."""
@@ -126,7 +134,10 @@ def format_table(summary: dict[str, Any]) -> str:
     lines = []
     for k in keys:
         value = summary[k]
-        if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        if k == "layers" and summary.get("kind") == "document":
+            lines.append(f"{k.ljust(width)}  {len(value)}")
+            lines.extend(f"{'':{width}}    {_layer_cell(n, v['poses'])}" for n, v in enumerate(value))
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
             lines.append(f"{k.ljust(width)}  {len(value)}")
             lines.extend(f"{'':{width}}    {_cell(v)}" for v in value)
         else:
