@@ -190,8 +190,12 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
         sl = tr.knot_slice(i)
         warped_t[sl] = np.interp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
     warped = with_knot_times(tr, warped_t)
-    kk, ii = np.nonzero(new_refine != 0.0)
-    edit = value.copy()
+    # editing knots are measured again where a variable's timing changed; the
+    # others keep their values to the bit, so that their segments are not refitted
+    _, _, edit = pose_arrays(tr, K)
+    moved = np.any(new_refine != refine, axis=0)
+    kk, ii = np.nonzero((new_refine != 0.0) & moved[None, :])
+    edit = np.where((new_refine != 0.0)[..., None], edit, value)
     if len(kk):
         edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk], depth=1)
     knots = knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names)
