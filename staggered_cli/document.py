@@ -30,6 +30,7 @@ from .motion import (
 )
 from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
 from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
+from .timewarp import warp_span
 
 #: Bounds of a resampled bake: no motion is captured finer than this.
 MAX_FPS_FACTOR = 100
@@ -70,7 +71,7 @@ class Constraint:
     def warped(self, old_t: np.ndarray, new_t: np.ndarray) -> Constraint:
         """The constraint moved by the piecewise-linear time map ``old_t -> new_t``."""
         s0, s1 = self.source_span
-        start, end = (float(x) for x in np.interp([self.start, self.end], old_t, new_t))
+        start, end = warp_span(self.start, self.end, old_t, new_t)
         if (start, end) == (self.start, self.end):
             return self
         return Constraint(self.joint, start, end, s0, s1, self.pin)

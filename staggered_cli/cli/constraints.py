@@ -75,18 +75,14 @@ def _retimed(doc, found):
     spans give the joint's time map; the new constraint follows it (its
     source span stays the detected one).
     """
-    import numpy as np
+    from ..timewarp import from_pairs
 
     pairs = [(0.0, 0.0), (doc.duration, doc.duration)]
     for c in doc.constraints:
         if c.joint == found.joint:
             (s0, s1), (t0, t1) = c.source_span, (c.start, c.end)
             pairs += [(s0, t0), (s1, t1)]
-    src, cur = (np.array(x) for x in zip(*sorted(pairs), strict=True))
-    start, end = (float(x) for x in np.interp([found.start, found.end], src, cur))
-    if (start, end) == (found.start, found.end):
-        return found
-    return type(found)(found.joint, start, end, found.start, found.end)
+    return found.warped(*from_pairs(pairs))
 
 
 def _table(constraints) -> str:

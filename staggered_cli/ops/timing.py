@@ -17,6 +17,7 @@ import numpy as np
 from ..document import Document, check_pose_index, reprioritized
 from ..errors import KnotOrderError, UsageError
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
+from ..timewarp import warp
 from . import marker_chain
 from .edit_pose import joint_mask
 
@@ -188,7 +189,7 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     warped_t = tr.knot_t.copy()
     for i in range(tr.n_vars):
         sl = tr.knots(i)
-        warped_t[sl] = np.interp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
+        warped_t[sl] = warp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
     warped = with_knot_times(tr, warped_t)
     kk, ii = np.nonzero(new_refine != 0.0)
     edit = value.copy()
