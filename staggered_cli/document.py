@@ -18,7 +18,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import quat
 from .errors import DataError, UsageError
 from .motion import (
     BvhMotion,
@@ -28,13 +27,9 @@ from .motion import (
     rate_problem,
     rotation_columns,
 )
-from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
+from .representation import ROTATION, TRANSLATION, Track, build_track, pose_arrays
 from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
 from .timewarp import warp_span
-
-#: Bounds of a resampled bake: no motion is captured finer than this.
-MAX_FPS_FACTOR = 100
-MAX_OUTPUT_FRAMES = 10_000_000
 
 FORMAT_NAME = "staggered-poses"
 FORMAT_VERSION = 1
@@ -300,89 +295,6 @@ def from_motion(
         signals=dict(signals or {}),
         parameters=dict(parameters or {}),
     )
-
-
-# --- back to dense motion ------------------------------------------------------
-
-
-def same_rate(doc: Document, fps: float | None) -> bool:
-    """Whether ``fps`` is the source's own rate (its nominal rate, e.g. 120
-    for a written frame time of .0083333, or exactly its frame time)."""
-    if fps is None:
-        return True
-    return abs(fps - doc.source.rate) <= 1e-6 * fps or abs(fps * doc.frame_time - 1.0) < 1e-9
-
-
-def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
-    """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
-    if fps is not None and (not np.isfinite(fps) or fps <= 0):
-        raise UsageError(f"--fps must be a positive number, got {fps}")
-    if fps is not None and rate_problem(fps) is not None:
-        raise UsageError(f"--fps {fps:g} {rate_problem(fps)}")
-    if same_rate(doc, fps):
-        return doc.frame_times
-    n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
-    if fps > MAX_FPS_FACTOR * doc.source.rate or n > MAX_OUTPUT_FRAMES:
-        raise UsageError(
-            f"--fps {fps:g} is out of range: at most {MAX_FPS_FACTOR}x the source's {doc.source.rate:g} Hz "
-            f"and {MAX_OUTPUT_FRAMES} frames"
-        )
-    return np.minimum(np.arange(n) / fps, doc.duration)
-
-
-def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.ndarray, np.ndarray]:
-    """BVH documents: local rotations (N, J, 4) and translations (N, J, 3) at times ``t``."""
-    src = doc.source
-    assert isinstance(src, BvhMotion)
-    sk = src.skeleton
-    N = len(t)
-    rot = quat.identity((N, sk.n_joints))
-    tr = np.broadcast_to(sk.offsets, (N, sk.n_joints, 3)).copy()
-    for track in doc.tracks:
-        vals = evaluate(track, t, layers)
-        if track.kind == ROTATION:
-            rot[:, track.targets] = vals
-        else:
-            tr[:, track.targets] = vals
-    return rot, tr
-
-
-def marker_points(doc: Document, t: np.ndarray, layers: str = "all") -> np.ndarray:
-    """C3D documents: marker positions (N, M, 3) at times ``t``, NaN where the
-    source had a gap at the nearest source frame."""
-    src = doc.source
-    assert isinstance(src, MarkerMotion)
-    pts = evaluate(doc.tracks[0], t, layers)
-    nearest = np.clip(np.rint(np.asarray(t) / doc.frame_time).astype(int), 0, doc.n_frames - 1)
-    gap = ~np.all(np.isfinite(src.points), axis=2)[nearest]
-    return np.where(gap[..., None], np.nan, pts)
-
-
-def reference_channels(doc: Document, t: np.ndarray) -> np.ndarray:
-    """BVH channel values of the source at times ``t`` (exact on source frames,
-    linear between them, rotation channels unwrapped first so that a wrap
-    from 179 to -179 degrees does not interpolate through 0): the reference
-    for choosing Euler triples."""
-    src = doc.source
-    assert isinstance(src, BvhMotion)
-    ch = src.channels
-    if len(t) == src.n_frames and np.allclose(t, doc.frame_times, atol=1e-9, rtol=0):
-        return ch
-    rot_cols = [c for _, cols, _ in rotation_columns(src.skeleton) for c in cols]
-    ch = ch.copy()
-    ch[:, rot_cols] = np.unwrap(ch[:, rot_cols], period=360.0, axis=0)
-    return at_times(ch, doc.frame_time, t)
-
-
-def at_times(values: np.ndarray, frame_time: float, t: np.ndarray) -> np.ndarray:
-    """Frame values ``(T, ...)`` (frame k at ``k · frame_time`` seconds) at
-    times ``t`` (N,): linear between frames, held at the ends; NaN where a
-    neighbouring frame is NaN.  Returns (N, ...)."""
-    f = np.clip(np.asarray(t, dtype=float) / frame_time, 0, len(values) - 1)
-    lo = np.floor(f).astype(int)
-    hi = np.minimum(lo + 1, len(values) - 1)
-    w = (f - lo).reshape((-1,) + (1,) * (values.ndim - 1))
-    return values[lo] * (1.0 - w) + values[hi] * w
 
 
 def reprioritized(doc: Document) -> Document:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from staggered_cli import document as D
-from staggered_cli import quat
+from staggered_cli import quat, sampling
 from staggered_cli.errors import KnotOrderError, UsageError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.motion import local_rotations_from_channels
@@ -53,8 +53,8 @@ def test_rotate_true_pose_is_exact_and_local(walk):
     sk = walk.source.skeleton
     j = sk.index("LeftArm")
     edited = E.edit_pose(walk, k, rotate={"LeftArm": (0.0, 0.0, 20.0)})
-    r0, _ = D.local_pose(walk, walk.pose_t[k : k + 1])
-    r1, _ = D.local_pose(edited, walk.pose_t[k : k + 1])
+    r0, _ = sampling.local_pose(walk, walk.pose_t[k : k + 1])
+    r1, _ = sampling.local_pose(edited, walk.pose_t[k : k + 1])
     assert np.degrees(quat.angle_between(r0[0, j], r1[0, j])) == pytest.approx(20.0, abs=1e-9)
     # about the joint's local Z axis, applied after the current rotation
     expected = quat.mul(r0[0, j], quat.from_euler(np.array([0.0, 0.0, 20.0]), "XYZ"))
@@ -105,7 +105,7 @@ def test_from_bvh_sets_the_true_pose(walk):
     m = walk.source
     values = E.values_from_motion(walk, m, 100)
     edited = E.edit_pose(walk, 6, values=values, joints=["LeftUpLeg"], subtree=True)
-    r, _ = D.local_pose(edited, walk.pose_t[6:7])
+    r, _ = sampling.local_pose(edited, walk.pose_t[6:7])
     sk = m.skeleton
     src = m.local_rotations()[100]
     for name in ("LeftUpLeg", "LeftLeg", "LeftFoot"):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from staggered_cli import document as D
-from staggered_cli import quat
+from staggered_cli import quat, sampling
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.motion import channels_from_local
 from staggered_cli.representation import evaluate, restructure, with_knot_times
@@ -16,7 +16,7 @@ from .conftest import BVH_FILES, C3D_FILES, mocap
 
 
 def _bake_channels(doc):
-    rot, tr = D.local_pose(doc, doc.frame_times)
+    rot, tr = sampling.local_pose(doc, doc.frame_times)
     return channels_from_local(doc.source.skeleton, rot, tr, doc.source.channels), rot, tr
 
 
@@ -55,7 +55,7 @@ def test_c3d_round_trip(name):
     pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.2, 0.25)
     doc = D.from_motion(m, pose_t)
     doc = D.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
-    pts = D.marker_points(doc, doc.frame_times)
+    pts = sampling.marker_points(doc, doc.frame_times)
     gaps = np.isnan(m.points)
     np.testing.assert_array_equal(np.isnan(pts), gaps)
     assert np.nanmax(np.abs(pts - m.points)) < 1e-6 * m.figure_height()

@@ -18,14 +18,15 @@ import logging
 import numpy as np
 
 from .. import quat
-from ..document import Document, at_times, local_pose, marker_points, output_times, reference_channels
-from ..document import same_rate as is_same_rate
+from ..document import Document
 from ..errors import UsageError
 from ..motion import (
     BvhMotion,
     MarkerMotion,
     channels_from_local,
+    rate_problem,
 )
+from ..sampling import at_times, local_pose, marker_points, reference_channels
 from ..skeleton import forward_kinematics
 
 log = logging.getLogger(__name__)
@@ -33,6 +34,10 @@ log = logging.getLogger(__name__)
 _UNDISTURBED = 1e-6  # of figure height
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
 _RESAMPLED = 1e-3  # of figure height, when baking at another rate
+
+#: Bounds of a resampled bake: no motion is captured finer than this.
+MAX_FPS_FACTOR = 100
+MAX_OUTPUT_FRAMES = 10_000_000
 
 
 def bake(
@@ -72,6 +77,31 @@ def bake(
     if ik and layers == "all" and doc.constraints:
         pts = _pin_markers(doc, pts, t, ik_blend, same_rate)
     return MarkerMotion(src.labels, pts, 1.0 / frame_time, src.units, src.source)
+
+
+def is_same_rate(doc: Document, fps: float | None) -> bool:
+    """Whether ``fps`` is the source's own rate (its nominal rate, e.g. 120
+    for a written frame time of .0083333, or exactly its frame time)."""
+    if fps is None:
+        return True
+    return abs(fps - doc.source.rate) <= 1e-6 * fps or abs(fps * doc.frame_time - 1.0) < 1e-9
+
+
+def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
+    """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
+    if fps is not None and (not np.isfinite(fps) or fps <= 0):
+        raise UsageError(f"--fps must be a positive number, got {fps}")
+    if fps is not None and rate_problem(fps) is not None:
+        raise UsageError(f"--fps {fps:g} {rate_problem(fps)}")
+    if is_same_rate(doc, fps):
+        return doc.frame_times
+    n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
+    if fps > MAX_FPS_FACTOR * doc.source.rate or n > MAX_OUTPUT_FRAMES:
+        raise UsageError(
+            f"--fps {fps:g} is out of range: at most {MAX_FPS_FACTOR}x the source's {doc.source.rate:g} Hz "
+            f"and {MAX_OUTPUT_FRAMES} frames"
+        )
+    return np.minimum(np.arange(n) / fps, doc.duration)
 
 
 def _frame_time_text(ft: float) -> str:

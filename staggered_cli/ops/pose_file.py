@@ -16,10 +16,11 @@ from __future__ import annotations
 import numpy as np
 
 from .. import quat
-from ..document import Document, reference_channels, require_bvh, variable_layout
+from ..document import Document, require_bvh, variable_layout
 from ..errors import DataError, UsageError
 from ..motion import BvhMotion, channels_from_local
 from ..representation import ROTATION, TRANSLATION, Track, knots_from_poses, pose_arrays
+from ..sampling import reference_channels
 from .edit_pose import joint_mask
 
 #: What counts as a change when a pose file comes back (issue 15).
