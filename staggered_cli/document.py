@@ -297,20 +297,6 @@ def from_motion(
     )
 
 
-def reprioritized(doc: Document) -> Document:
-    """Priorities recomputed for the current poses, ``P(t_k)(t_{k+1} - t_{k-1})``
-    from the stored pose probability (paper 4.1), after poses were culled,
-    added or retimed; unchanged when the document has no ``P`` signal."""
-    P = doc.signals.get("P")
-    if P is None or len(P) != doc.n_frames or doc.n_poses < 3:
-        return doc
-    P = np.asarray(P, dtype=float)
-    priority = np.full(doc.n_poses, np.inf)
-    f = np.clip(np.rint(doc.pose_t[1:-1] / doc.frame_time).astype(int), 0, doc.n_frames - 1)
-    priority[1:-1] = P[f] * (doc.pose_t[2:] - doc.pose_t[:-2])
-    return replace(doc, priority=priority)
-
-
 def check_pose_index(doc: Document, k: int) -> int:
     if not -doc.n_poses <= k < doc.n_poses:
         raise UsageError(f"pose {k} is out of range (the document has poses 0 to {doc.n_poses - 1})")

@@ -508,9 +508,7 @@ def extract(
     pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH)
     pose_t = pose_f * float(motion.frame_time)
 
-    priority = np.full(len(pose_f), np.inf)
-    if len(pose_f) > 2:
-        priority[1:-1] = P[pose_f[1:-1]] * (pose_t[2:] - pose_t[:-2])
+    priority = signals.pose_priority(P, pose_f, pose_t)
 
     peaks = refinement_frames(ev.p, pose_f, window)
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)

@@ -14,9 +14,10 @@ import logging
 
 import numpy as np
 
-from ..document import Document, check_pose_index, reprioritized
+from ..document import Document, check_pose_index
 from ..errors import KnotOrderError, UsageError
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
+from ..signals import reprioritized
 from ..timewarp import warp
 from . import marker_chain
 from .edit_pose import joint_mask
