@@ -464,7 +464,7 @@ def test_detect_kind():
 
 
 def test_info_on_a_document_npz_and_json(tmp_path):
-    from staggered_cli import document as representation
+    from staggered_cli import variables as representation
 
     sample = ROOT / "data" / "samples" / "march.bvh"
     if not sample.exists():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from staggered_cli import document as D
-from staggered_cli import quat, sampling
+from staggered_cli import quat, sampling, variables
 from staggered_cli.errors import KnotOrderError, UsageError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.motion import local_rotations_from_channels
@@ -24,9 +24,9 @@ def walk():
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
     rng = np.random.default_rng(11)
     pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.1, 0.2)
-    doc = D.from_motion(m, pose_t)
+    doc = variables.from_motion(m, pose_t)
     ref = np.round(rng.uniform(-0.05, 0.05, (doc.n_poses, len(doc.variable_names))) / m.frame_time) * m.frame_time
-    return D.from_motion(m, doc.pose_t, ref)
+    return variables.from_motion(m, doc.pose_t, ref)
 
 
 def _rot(motion):
@@ -152,7 +152,7 @@ def _lag(orig: np.ndarray, edited: np.ndarray, f: int, max_lag: int, half: int =
 @pytest.mark.parametrize("power", [1.0, 1.5])
 def test_succession_shifts_extrema_by_offset_times_depth_power(power):
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.6))
+    doc = variables.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.6))
     offset = 0.02
     out = timing.succession(doc, offset, power, joint="LeftShoulder")
     sk = m.skeleton

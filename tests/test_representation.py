@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from staggered_cli import document as D
-from staggered_cli import quat, sampling
+from staggered_cli import quat, sampling, variables
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.motion import channels_from_local
 from staggered_cli.representation import evaluate, restructure, with_knot_times
@@ -35,9 +35,9 @@ def bvh(request):
 def test_bvh_round_trip(bvh, refined):
     rng = np.random.default_rng(7)
     pose_t = np.arange(0.0, (bvh.n_frames - 1) * bvh.frame_time - 0.2, 0.25)
-    doc = D.from_motion(bvh, pose_t)
+    doc = variables.from_motion(bvh, pose_t)
     if refined:
-        doc = D.from_motion(bvh, doc.pose_t, _random_refinements(doc, rng))
+        doc = variables.from_motion(bvh, doc.pose_t, _random_refinements(doc, rng))
         assert np.count_nonzero(doc.refinements()) > doc.n_poses
     ch, rot, tr = _bake_channels(doc)
     assert np.abs(ch - bvh.channels).max() < 1e-6
@@ -53,8 +53,8 @@ def test_c3d_round_trip(name):
     m = read_c3d(mocap(name))
     rng = np.random.default_rng(3)
     pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.2, 0.25)
-    doc = D.from_motion(m, pose_t)
-    doc = D.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
+    doc = variables.from_motion(m, pose_t)
+    doc = variables.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
     pts = sampling.marker_points(doc, doc.frame_times)
     gaps = np.isnan(m.points)
     np.testing.assert_array_equal(np.isnan(pts), gaps)
@@ -63,7 +63,7 @@ def test_c3d_round_trip(name):
 
 def test_restructure_keeps_the_motion_and_retime_warps_it():
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.2))
+    doc = variables.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.2))
     rot = doc.tracks[1]
     before = evaluate(rot, doc.frame_times)
     # drop every other pose's knots (keeping the first and last): a cull
@@ -89,7 +89,7 @@ def test_restructure_keeps_the_motion_and_retime_warps_it():
 
 def test_parts_round_trip_exactly():
     m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, 2.0, 0.3))
+    doc = variables.from_motion(m, np.arange(0.0, 2.0, 0.3))
     manifest, arrays = D.to_parts(doc)
     back = D.from_parts(manifest, arrays)
     m2, a2 = D.to_parts(back)

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import document as D
-from staggered_cli import quat, sampling
+from staggered_cli import quat, sampling, variables
 from staggered_cli.cli.main import cli
 from staggered_cli.document import from_parts, to_parts
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
@@ -253,7 +252,7 @@ def test_exaggerate_keeps_the_root_in_place(walk_doc):
 
 def test_exaggerate_through_the_cli(tmp_path):
     m = read_bvh(SAMPLES / "march.bvh")
-    doc = D.from_motion(m, np.arange(0.0, 4.0, 0.3))
+    doc = variables.from_motion(m, np.arange(0.0, 4.0, 0.3))
     manifest, arrays = to_parts(doc)
     path = tmp_path / "march.stag"
     path.write_bytes(document_bytes(manifest, arrays, "npz"))

@@ -53,7 +53,7 @@ def pose_values(doc: Document, k: int, on: str) -> list[np.ndarray]:
 def average_pose(doc: Document) -> list[np.ndarray]:
     """Per track, the mean over the source clip's frames (rotations: the
     normalized mean of hemisphere-aligned quaternions, the chordal L2 mean)."""
-    from ..document import dense_variables
+    from ..variables import dense_variables
 
     out = []
     for kind, _, _, dense in dense_variables(doc.source):
