@@ -9,7 +9,7 @@
 Each time is the median of ``--repeats`` runs and is split into the stages
 of :func:`staggered_cli.ops.extract.extract`: local evidence (trails,
 curvature, smoothing), contacts, the spline and displacement fit
-(``document.from_motion``, another module's work) and the rest (pose
+(``variables.from_motion``, another module's work) and the rest (pose
 selection, refinements).
 
     python bench/bench_extract.py [--repeats 3] [--no-scaling]

@@ -24,7 +24,8 @@ output left from an earlier run is removed, since it no longer matches its
 input.
 
 Nothing heavy is imported at module level: the stages import their own
-libraries when they run.
+libraries when they run.  The commands are the caller's: it passes their
+table (:data:`Commands`), so that this module knows no command line.
 """
 
 from __future__ import annotations
@@ -35,10 +36,14 @@ import os
 import shlex
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 from .errors import DataError, StaggeredError, UsageError
+
+#: Command name -> ``"module:attribute"`` of its click command (imported on
+#: first use; strings, so that the table goes to the worker processes).
+Commands = Mapping[str, str]
 
 #: Commands that read a document and write a document: the possible steps.
 STEP_COMMANDS = ("cull", "edit-pose", "succession", "randomize")
@@ -88,13 +93,11 @@ def _one_line(text: str) -> str:
     return " ".join(line.strip() for line in str(text).splitlines() if line.strip())
 
 
-def _command(name: str):
+def _command(name: str, commands: Commands):
     """The click command registered as ``name`` (imported on first use)."""
     import importlib
 
-    from .cli.main import COMMANDS
-
-    module_name, attr = COMMANDS[name].split(":")
+    module_name, attr = commands[name].split(":")
     return getattr(importlib.import_module(module_name), attr)
 
 
@@ -119,13 +122,13 @@ def _stdio(data: bytes) -> Iterator[tuple[io.BytesIO, io.StringIO]]:
         stdin.detach()
 
 
-def _invoke(name: str, argv: Sequence[str], data: bytes, messages: list[str]) -> bytes:
+def _invoke(name: str, argv: Sequence[str], data: bytes, messages: list[str], commands: Commands) -> bytes:
     """Run command ``name`` on ``argv`` with ``data`` as its standard input.
 
     Returns what it wrote on standard output; what it wrote on standard
     error is appended to ``messages``.  Its exceptions propagate unchanged.
     """
-    command = _command(name)
+    command = _command(name, commands)
     with _stdio(data) as (out, err):
         try:
             with command.make_context(name, list(argv)) as ctx:
@@ -135,7 +138,7 @@ def _invoke(name: str, argv: Sequence[str], data: bytes, messages: list[str]) ->
     return out.getvalue()
 
 
-def parse_steps(text: str | None) -> list[Step]:
+def parse_steps(text: str | None, commands: Commands) -> list[Step]:
     """Parse and check ``'cmd opts|cmd opts|...'`` before any file is read.
 
     Every step is parsed by its own click command and run up to the point
@@ -164,18 +167,16 @@ def parse_steps(text: str | None) -> list[Step]:
             raise UsageError(f"{where}: empty step (two '|' in a row, or a '|' at an end)")
         name, args = words[0], tuple(words[1:])
         if name not in STEP_COMMANDS:
-            from .cli.main import COMMANDS
-
             if name in ("extract", "bake"):
                 what = f"{name!r} is not a step: extract and bake are implied"
-            elif name in COMMANDS:
+            elif name in commands:
                 what = f"{name!r} does not turn a document into a document"
             else:
                 what = f"unknown command {name!r}"
             raise UsageError(f"{where}: {what} (steps: {', '.join(STEP_COMMANDS)})")
         if any(a.startswith(("-o", "--output")) for a in args):
             raise UsageError(f"{where}: a step takes no -o: the batch passes each step's output to the next")
-        command = _command(name)
+        command = _command(name, commands)
         try:
             # a FILE here would be read instead of the previous stage's output
             probe = command.make_context(name, list(args), resilient_parsing=True)
@@ -186,7 +187,7 @@ def parse_steps(text: str | None) -> list[Step]:
             raise UsageError(f"{where}: a step takes no FILE: the batch feeds it the previous stage's output")
         step = Step(name, args, part)
         try:
-            _invoke(name, step.argv(), b"", [])
+            _invoke(name, step.argv(), b"", [], commands)
         except DataError:
             pass  # the options passed; the (empty) input did not: as expected
         except click.exceptions.Exit:
@@ -264,19 +265,19 @@ def _reason(stage: str, err: BaseException, job: Job) -> str:
     return f"{stage}: {_one_line(text)}"
 
 
-def run_file(job: Job, steps: Sequence[Step]) -> Result:
+def run_file(job: Job, steps: Sequence[Step], commands: Commands) -> Result:
     """Extract, apply ``steps`` and bake one file; never raises for a bad file."""
     start = time.perf_counter()
     messages: list[str] = []
     stage = "extract"
     try:
-        data = _invoke("extract", ["-o", "-", "--", job.src], b"", messages)
+        data = _invoke("extract", ["-o", "-", "--", job.src], b"", messages, commands)
         for step in steps:
             stage = step.name
-            data = _invoke(step.name, step.argv(), data, messages)
+            data = _invoke(step.name, step.argv(), data, messages, commands)
         stage = "bake"
         os.makedirs(os.path.dirname(job.dst) or ".", exist_ok=True)
-        _invoke("bake", ["--force", "-o", job.dst, "-"], data, messages)
+        _invoke("bake", ["--force", "-o", job.dst, "-"], data, messages, commands)
     except Exception as err:  # one file's failure, whatever it is, is reported and the batch goes on
         _remove_stale(job.dst)
         return Result(job.rel, FAILED, time.perf_counter() - start, _reason(stage, err, job), tuple(messages))
@@ -367,7 +368,7 @@ def _die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
-def _worker_main(conn, parent_pid: int, level: int) -> None:
+def _worker_main(conn, parent_pid: int, level: int, commands: Commands) -> None:
     """A worker process: run the jobs sent on ``conn`` one by one, send back each Result."""
     import signal
     import threading
@@ -384,7 +385,7 @@ def _worker_main(conn, parent_pid: int, level: int) -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, unwind)
-    from .cli.main import configure_logging, log
+    from .log import configure_logging, log
 
     configure_logging(0, 0)
     log.setLevel(level)
@@ -398,7 +399,7 @@ def _worker_main(conn, parent_pid: int, level: int) -> None:
                 return
             job, steps = msg
             _inject_fault(job.rel)
-            conn.send(run_file(job, steps))
+            conn.send(run_file(job, steps, commands))
     except KeyboardInterrupt:
         return
 
@@ -421,9 +422,9 @@ def _death(exitcode: int | None) -> str:
 class _Worker:
     """One worker process, the pipe to it and the job it is running."""
 
-    def __init__(self, ctx, level: int):
+    def __init__(self, ctx, level: int, commands: Commands):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_main, args=(child, os.getpid(), level), daemon=True)
+        self.proc = ctx.Process(target=_worker_main, args=(child, os.getpid(), level, dict(commands)), daemon=True)
         self.proc.start()
         child.close()
         self.job: Job | None = None
@@ -467,6 +468,7 @@ def run_batch(
     jobs: Sequence[Job],
     steps: Sequence[Step],
     workers: int,
+    commands: Commands,
     on_result: Callable[[Result], None] | None = None,
 ) -> list[Result]:
     """Process ``jobs`` with ``workers`` processes (at least one, even for
@@ -476,6 +478,7 @@ def run_batch(
     is not the one that drew the longest clip at the end.  A worker that
     dies (a segmentation fault, the out-of-memory killer) fails the file it
     was running with a one-line reason, and a new worker takes its place.
+    ``commands`` is the table the steps' names are looked up in;
     ``on_result`` is called in this process as each file finishes.
     """
     import logging
@@ -500,7 +503,7 @@ def run_batch(
     pool: list[_Worker] = []
     try:
         for _ in range(max(1, min(workers, len(order)))):
-            w = _Worker(ctx, level)
+            w = _Worker(ctx, level, commands)
             pool.append(w)
             w.run(order.popleft(), frozen)
         while any(w.job is not None for w in pool):
@@ -529,7 +532,7 @@ def run_batch(
 
                     remove_stale_temporaries(job.dst)
                     done(Result(job.rel, FAILED, time.perf_counter() - w.start, _death(w.proc.exitcode)))
-                    w = pool[i] = _Worker(ctx, level) if order else w
+                    w = pool[i] = _Worker(ctx, level, commands) if order else w
                     w.job = None
                 if order and w.job is None and w.proc.is_alive():
                     w.run(order.popleft(), frozen)

@@ -11,26 +11,21 @@ global order is the second axis of refinement arrays ``(K, V)``.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import quat
 from .errors import DataError, UsageError
 from .motion import (
     BvhMotion,
     MarkerMotion,
     position_columns,
-    rate_problem,
     rotation_columns,
 )
-from .representation import ROTATION, TRANSLATION, Track, build_track, evaluate, pose_arrays
+from .representation import ROTATION, TRANSLATION, Track, pose_arrays
+from .timewarp import warp_span
 
-#: Bounds of a resampled bake: no motion is captured finer than this.
-MAX_FPS_FACTOR = 100
-MAX_OUTPUT_FRAMES = 10_000_000
 #: Most layers a document may stack.
 MAX_LAYERS = 64
 
@@ -66,7 +61,7 @@ class Constraint:
     def warped(self, old_t: np.ndarray, new_t: np.ndarray) -> Constraint:
         """The constraint moved by the piecewise-linear time map ``old_t -> new_t``."""
         s0, s1 = self.source_span
-        start, end = (float(x) for x in np.interp([self.start, self.end], old_t, new_t))
+        start, end = warp_span(self.start, self.end, old_t, new_t)
         if (start, end) == (self.start, self.end):
             return self
         return Constraint(self.joint, start, end, s0, s1, self.pin)
@@ -201,212 +196,6 @@ def seconds(t: float, frame_time: float, *, sign: bool = False) -> str:
     """``'0.933 s'``: a time (or a duration) to the precision of the frames,
     never a raw float such as ``0.9332980000000001``."""
     return f"{float(t):{'+' if sign else ''}.{time_decimals(frame_time)}f} s"
-
-
-# --- from dense motion ----------------------------------------------------------
-
-
-def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]]:
-    """The control variables of a clip as (kind, names, targets, dense values (T, V, D))."""
-    layout = variable_layout(motion)
-    if isinstance(motion, BvhMotion):
-        dense = {ROTATION: motion.local_rotations(), TRANSLATION: motion.local_translations()}  # cached per clip
-        return [(kind, names, targets, dense[kind][:, targets]) for kind, names, targets in layout]
-    return [(*layout[0], fill_gaps(motion.points))]
-
-
-def fill_gaps(points: np.ndarray) -> np.ndarray:
-    """Markers with NaN gaps filled by linear interpolation (held at the ends;
-    a marker never seen is zero).  The gaps are put back when baking."""
-    T, M, _ = points.shape
-    out = np.array(points, dtype=float, copy=True)
-    frames = np.arange(T)
-    seen = np.all(np.isfinite(out), axis=2)
-    for m in range(M):
-        ok = seen[:, m]
-        if ok.all():
-            continue
-        if not ok.any():
-            out[:, m] = 0.0
-            continue
-        for ax in range(3):
-            out[:, m, ax] = np.interp(frames, frames[ok], out[ok, m, ax])
-    return out
-
-
-def from_motion(
-    motion: BvhMotion | MarkerMotion,
-    pose_t: np.ndarray,
-    refine: np.ndarray | None = None,
-    *,
-    priority: np.ndarray | None = None,
-    source_name: str = "",
-    source_bytes: bytes | None = None,
-    constraints: tuple[Constraint, ...] = (),
-    signals: dict | None = None,
-    parameters: dict | None = None,
-) -> Document:
-    """Build a document with poses at chosen times and refinements.
-
-    Parameters
-    ----------
-    motion : the dense clip.
-    pose_t : (K,) pose times in seconds; the first and last frame are added
-        when missing.  Times are used as given (they need not be on frames).
-    refine : (K, V) refinements in seconds over all variables (translations
-        first, then rotations); zero by default.  The first and last poses
-        are kept unrefined.
-
-    Raises
-    ------
-    UsageError if poses lie outside the clip or knots would cross.
-    """
-    T = motion.n_frames
-    ft = float(motion.frame_time)
-    frame_t = np.arange(T) * ft
-    pose_t = np.asarray(pose_t, dtype=float)
-    end = frame_t[-1]
-    if np.any(pose_t < -1e-9) or np.any(pose_t > end + 1e-9):
-        raise UsageError(f"pose times must lie within the clip (0 to {seconds(end, ft)})")
-    variables = dense_variables(motion)
-    V = sum(len(names) for _, names, _, _ in variables)
-    if refine is None:
-        refine = np.zeros((len(pose_t), V))
-    refine = np.asarray(refine, dtype=float)
-    if refine.shape != (len(pose_t), V):
-        raise UsageError(f"refinements must have shape ({len(pose_t)}, {V}), got {refine.shape}")
-    # first and last frame always carry an unrefined pose
-    extra = [t for t in (0.0, end) if not np.any(np.abs(pose_t - t) < 1e-9)]
-    if extra:
-        pose_t = np.concatenate([pose_t, extra])
-        refine = np.concatenate([refine, np.zeros((len(extra), V))])
-        if priority is not None:
-            priority = np.concatenate([priority, np.full(len(extra), np.inf)])
-    order = np.argsort(pose_t, kind="stable")
-    pose_t, refine = pose_t[order], refine[order]
-    if np.any(np.diff(pose_t) <= 0):
-        raise UsageError("pose times must be distinct")
-    refine[0] = 0.0
-    refine[-1] = 0.0
-    if priority is None:
-        priority = np.zeros(len(pose_t))
-        priority[[0, -1]] = np.inf
-    else:
-        priority = np.asarray(priority, dtype=float)[order]
-    tracks, col = [], 0
-    for kind, names, targets, dense in variables:
-        n = len(names)
-        tracks.append(build_track(kind, names, targets, frame_t, dense, pose_t, refine[:, col : col + n]))
-        col += n
-    sha = hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else ""
-    return Document(
-        pose_t=pose_t,
-        priority=priority,
-        tracks=tuple(tracks),
-        source=motion,
-        source_name=source_name,
-        source_sha256=sha,
-        constraints=tuple(constraints),
-        signals=dict(signals or {}),
-        parameters=dict(parameters or {}),
-    )
-
-
-# --- back to dense motion ------------------------------------------------------
-
-
-def same_rate(doc: Document, fps: float | None) -> bool:
-    """Whether ``fps`` is the source's own rate (its nominal rate, e.g. 120
-    for a written frame time of .0083333, or exactly its frame time)."""
-    if fps is None:
-        return True
-    return abs(fps - doc.source.rate) <= 1e-6 * fps or abs(fps * doc.frame_time - 1.0) < 1e-9
-
-
-def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
-    """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
-    if fps is not None and (not np.isfinite(fps) or fps <= 0):
-        raise UsageError(f"--fps must be a positive number, got {fps}")
-    if fps is not None and rate_problem(fps) is not None:
-        raise UsageError(f"--fps {fps:g} {rate_problem(fps)}")
-    if same_rate(doc, fps):
-        return doc.frame_times
-    n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
-    if fps > MAX_FPS_FACTOR * doc.source.rate or n > MAX_OUTPUT_FRAMES:
-        raise UsageError(
-            f"--fps {fps:g} is out of range: at most {MAX_FPS_FACTOR}x the source's {doc.source.rate:g} Hz "
-            f"and {MAX_OUTPUT_FRAMES} frames"
-        )
-    return np.minimum(np.arange(n) / fps, doc.duration)
-
-
-def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.ndarray, np.ndarray]:
-    """BVH documents: local rotations (N, J, 4) and translations (N, J, 3) at times ``t``."""
-    src = doc.source
-    assert isinstance(src, BvhMotion)
-    sk = src.skeleton
-    N = len(t)
-    rot = quat.identity((N, sk.n_joints))
-    tr = np.broadcast_to(sk.offsets, (N, sk.n_joints, 3)).copy()
-    for track in doc.tracks:
-        vals = evaluate(track, t, layers)
-        if track.kind == ROTATION:
-            rot[:, track.targets] = vals
-        else:
-            tr[:, track.targets] = vals
-    return rot, tr
-
-
-def marker_points(doc: Document, t: np.ndarray, layers: str = "all") -> np.ndarray:
-    """C3D documents: marker positions (N, M, 3) at times ``t``, NaN where the
-    source had a gap at the nearest source frame."""
-    src = doc.source
-    assert isinstance(src, MarkerMotion)
-    pts = evaluate(doc.tracks[0], t, layers)
-    nearest = np.clip(np.rint(np.asarray(t) / doc.frame_time).astype(int), 0, doc.n_frames - 1)
-    gap = ~np.all(np.isfinite(src.points), axis=2)[nearest]
-    return np.where(gap[..., None], np.nan, pts)
-
-
-def reference_channels(doc: Document, t: np.ndarray) -> np.ndarray:
-    """BVH channel values of the source at times ``t`` (exact on source frames,
-    linear between them, rotation channels unwrapped first so that a wrap
-    from 179 to -179 degrees does not interpolate through 0): the reference
-    for choosing Euler triples."""
-    src = doc.source
-    assert isinstance(src, BvhMotion)
-    ch = src.channels
-    if len(t) == src.n_frames and np.allclose(t, doc.frame_times, atol=1e-9, rtol=0):
-        return ch
-    rot_cols = [c for _, cols, _ in rotation_columns(src.skeleton) for c in cols]
-    ch = ch.copy()
-    ch[:, rot_cols] = np.unwrap(ch[:, rot_cols], period=360.0, axis=0)
-    return at_times(ch, doc.frame_time, t)
-
-
-def at_times(values: np.ndarray, frame_time: float, t: np.ndarray) -> np.ndarray:
-    """Frame values ``(T, ...)`` (frame k at ``k · frame_time`` seconds) at
-    times ``t`` (N,): linear between frames, held at the ends; NaN where a
-    neighbouring frame is NaN.  Returns (N, ...)."""
-    f = np.clip(np.asarray(t, dtype=float) / frame_time, 0, len(values) - 1)
-    lo = np.floor(f).astype(int)
-    hi = np.minimum(lo + 1, len(values) - 1)
-    w = (f - lo).reshape((-1,) + (1,) * (values.ndim - 1))
-    return values[lo] * (1.0 - w) + values[hi] * w
-
-
-def reprioritized(doc: Document) -> Document:
-    """Priorities recomputed for the current poses, ``P(t_k)(t_{k+1} - t_{k-1})``
-    from the stored pose probability (paper 4.1), after poses were culled,
-    added or retimed; unchanged when the document has no ``P`` signal."""
-    P = doc.signals.get("P")
-    if P is None or len(P) != doc.n_frames or doc.n_poses < 3:
-        return doc
-    P = np.asarray(P, dtype=float)
-    priority = np.full(doc.n_poses, np.inf)
-    f = np.clip(np.rint(doc.pose_t[1:-1] / doc.frame_time).astype(int), 0, doc.n_frames - 1)
-    priority[1:-1] = P[f] * (doc.pose_t[2:] - doc.pose_t[:-2])
-    return replace(doc, priority=priority)
 
 
 def check_pose_index(doc: Document, k: int) -> int:

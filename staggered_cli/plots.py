@@ -214,8 +214,8 @@ def _up(points: np.ndarray, size: float) -> np.ndarray:
 
 def _moving(doc: Document, variables: list[_Var]) -> np.ndarray:
     """(V,) bool: the variable moves in the source or has a refinement."""
-    from .document import dense_variables
     from .representation import ROTATION
+    from .variables import dense_variables
 
     size = float(doc.source.figure_height())
     moving = []
@@ -600,8 +600,8 @@ def timing_figure(
 def _default_curves(doc: Document) -> list[_Var]:
     """The few variables that move most (rotations for BVH), preferring
     those with refinements, in hierarchy order."""
-    from .document import dense_variables
     from .representation import ROTATION
+    from .variables import dense_variables
 
     variables = _variables(doc)
     w = _signal(doc, "weights", (len(variables),))

@@ -60,15 +60,16 @@ given duration grows with the frame rate squared.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from . import quat
-from .document import dense_variables
+from .document import Document
 from .motion import BvhMotion, MarkerMotion
 from .representation import ROTATION
 from .skeleton import Skeleton
+from .variables import dense_variables
 
 #: A rotation step larger than this between two frames is a discontinuity of
 #: that variable (degrees): no joint turns 100° in one frame, even at 30 Hz.
@@ -337,6 +338,28 @@ def pose_probability(
         den += contact_weight
     mean = num / den if den > 0 else np.zeros(len(num))
     return tent_filter(mean, filter_width, ev.rate)
+
+
+def pose_priority(P: np.ndarray, frames: np.ndarray, pose_t: np.ndarray) -> np.ndarray:
+    """The paper's pose priorities ``P(t_k)(t_{k+1} - t_{k-1})`` (K,) (4.1):
+    ``P`` (T,) the pose probability, ``frames`` (K,) the poses' frames,
+    ``pose_t`` (K,) their times; infinite for the first and last pose, which
+    culling always keeps."""
+    priority = np.full(len(pose_t), np.inf)
+    if len(pose_t) > 2:
+        priority[1:-1] = P[frames[1:-1]] * (pose_t[2:] - pose_t[:-2])
+    return priority
+
+
+def reprioritized(doc: Document) -> Document:
+    """Priorities recomputed for the current poses from the stored pose
+    probability, after poses were culled, added or retimed; unchanged when
+    the document has no ``P`` signal."""
+    P = doc.signals.get("P")
+    if P is None or len(P) != doc.n_frames or doc.n_poses < 3:
+        return doc
+    frames = np.clip(np.rint(doc.pose_t / doc.frame_time).astype(int), 0, doc.n_frames - 1)
+    return replace(doc, priority=pose_priority(np.asarray(P, dtype=float), frames, doc.pose_t))
 
 
 # --- trails ---------------------------------------------------------------------

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import document as D
+from staggered_cli import variables
 from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import parse_bvh, read_bvh
 from staggered_cli.io.document import document_bytes, from_parts, parse_document, to_parts
@@ -23,7 +23,7 @@ def run(args, input=None):
 @pytest.fixture(scope="module")
 def doc_file(tmp_path_factory):
     m = read_bvh(SAMPLES / "march.bvh")
-    doc = D.from_motion(m, np.arange(0.0, 4.0, 0.3))
+    doc = variables.from_motion(m, np.arange(0.0, 4.0, 0.3))
     manifest, arrays = to_parts(doc)
     path = tmp_path_factory.mktemp("docs") / "march.stag"
     path.write_bytes(document_bytes(manifest, arrays, "npz"))

@@ -464,15 +464,15 @@ def test_detect_kind():
 
 
 def test_info_on_a_document_npz_and_json(tmp_path):
-    from staggered_cli import document as representation
     from staggered_cli.io.document import to_parts
+    from staggered_cli.variables import from_motion
 
     sample = ROOT / "data" / "samples" / "march.bvh"
     if not sample.exists():
         pytest.skip(f"{sample} is not there")
     motion = options.load_input(str(sample))
     end = (motion.n_frames - 1) * motion.frame_time
-    doc = representation.from_motion(motion, np.array([0.0, 1.0, end]), source_name=sample.name)
+    doc = from_motion(motion, np.array([0.0, 1.0, end]), source_name=sample.name)
     manifest, arrays = to_parts(doc)
     for fmt in ("npz", "json"):
         path = tmp_path / f"march.{fmt}"

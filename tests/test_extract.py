@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from scipy.ndimage import gaussian_filter1d
 
 from staggered_cli import contacts as C
-from staggered_cli import document as D
+from staggered_cli import sampling
 from staggered_cli import signals as S
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import read_bvh
@@ -70,7 +70,7 @@ def _frames(times, doc) -> np.ndarray:
 def test_bvh_extract_then_bake_reproduces_the_source(name):
     doc = _extracted(name)
     src = _motion(name)
-    rot, tr = D.local_pose(doc, doc.frame_times)
+    rot, tr = sampling.local_pose(doc, doc.frame_times)
     ch = channels_from_local(src.skeleton, rot, tr, src.channels)
     assert np.abs(ch - src.channels).max() < 1e-6
     # and the document is a real one: several poses, refined, valid knots
@@ -83,7 +83,7 @@ def test_bvh_extract_then_bake_reproduces_the_source(name):
 def test_c3d_extract_then_bake_reproduces_the_source(name):
     doc = _extracted(name)
     src = _motion(name)
-    pts = D.marker_points(doc, doc.frame_times)
+    pts = sampling.marker_points(doc, doc.frame_times)
     np.testing.assert_array_equal(np.isnan(pts), np.isnan(src.points))
     assert np.nanmax(np.abs(pts - src.points)) < 1e-6 * src.figure_height()
 

@@ -389,12 +389,12 @@ def test_bad_input_is_refused():
 
 @pytest.fixture(scope="module")
 def run_doc(tmp_path_factory):
-    from staggered_cli import document as D
+    from staggered_cli import variables as V
     from staggered_cli.io.document import document_bytes, to_parts
 
     c = load("bandai2_run_normal_001.bvh")
     m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, c.t[-1], 0.5), constraints=tuple(c.detect(c.ankles)))
+    doc = V.from_motion(m, np.arange(0.0, c.t[-1], 0.5), constraints=tuple(c.detect(c.ankles)))
     path = tmp_path_factory.mktemp("ik") / "run.stag"
     path.write_bytes(document_bytes(*to_parts(doc), "npz"))
     return path, doc

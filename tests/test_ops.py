@@ -7,8 +7,7 @@ import logging
 import numpy as np
 import pytest
 
-from staggered_cli import document as D
-from staggered_cli import quat
+from staggered_cli import quat, sampling, variables
 from staggered_cli.errors import KnotOrderError, UsageError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.document import to_parts
@@ -25,9 +24,9 @@ def walk():
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
     rng = np.random.default_rng(11)
     pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.1, 0.2)
-    doc = D.from_motion(m, pose_t)
+    doc = variables.from_motion(m, pose_t)
     ref = np.round(rng.uniform(-0.05, 0.05, (doc.n_poses, len(doc.variable_names))) / m.frame_time) * m.frame_time
-    return D.from_motion(m, doc.pose_t, ref)
+    return variables.from_motion(m, doc.pose_t, ref)
 
 
 def _rot(motion):
@@ -54,8 +53,8 @@ def test_rotate_true_pose_is_exact_and_local(walk):
     sk = walk.source.skeleton
     j = sk.index("LeftArm")
     edited = E.edit_pose(walk, k, rotate={"LeftArm": (0.0, 0.0, 20.0)})
-    r0, _ = D.local_pose(walk, walk.pose_t[k : k + 1])
-    r1, _ = D.local_pose(edited, walk.pose_t[k : k + 1])
+    r0, _ = sampling.local_pose(walk, walk.pose_t[k : k + 1])
+    r1, _ = sampling.local_pose(edited, walk.pose_t[k : k + 1])
     assert np.degrees(quat.angle_between(r0[0, j], r1[0, j])) == pytest.approx(20.0, abs=1e-9)
     # about the joint's local Z axis, applied after the current rotation
     expected = quat.mul(r0[0, j], quat.from_euler(np.array([0.0, 0.0, 20.0]), "XYZ"))
@@ -106,7 +105,7 @@ def test_from_bvh_sets_the_true_pose(walk):
     m = walk.source
     values = E.values_from_motion(walk, m, 100)
     edited = E.edit_pose(walk, 6, values=values, joints=["LeftUpLeg"], subtree=True)
-    r, _ = D.local_pose(edited, walk.pose_t[6:7])
+    r, _ = sampling.local_pose(edited, walk.pose_t[6:7])
     sk = m.skeleton
     src = m.local_rotations()[100]
     for name in ("LeftUpLeg", "LeftLeg", "LeftFoot"):
@@ -153,7 +152,7 @@ def _lag(orig: np.ndarray, edited: np.ndarray, f: int, max_lag: int, half: int =
 @pytest.mark.parametrize("power", [1.0, 1.5])
 def test_succession_shifts_extrema_by_offset_times_depth_power(power):
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.6))
+    doc = variables.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.6))
     offset = 0.02
     out = timing.succession(doc, offset, power, joint="LeftShoulder")
     sk = m.skeleton

@@ -15,6 +15,7 @@ from PIL import Image
 
 from staggered_cli import document as D
 from staggered_cli import plots
+from staggered_cli import variables as V
 from staggered_cli.cli.main import cli
 from staggered_cli.cli.options import load_input
 from staggered_cli.cli.preview import join_at
@@ -44,7 +45,7 @@ def make_document(name: str) -> D.Document:
     extract = _extract()
     if extract is not None:
         return extract(motion, source_name=name)
-    return D.from_motion(motion, np.arange(0.0, (motion.n_frames - 1) * motion.frame_time, 0.25), source_name=name)
+    return V.from_motion(motion, np.arange(0.0, (motion.n_frames - 1) * motion.frame_time, 0.25), source_name=name)
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +135,7 @@ def test_an_edit_shows_in_timing_and_curves(documents):
 
 def test_signals_without_stored_signals_say_so():
     motion = load_input(str(mocap("bandai2_run_normal_001.bvh")))
-    doc = D.from_motion(motion, np.arange(0.0, 2.0, 0.25))
+    doc = V.from_motion(motion, np.arange(0.0, 2.0, 0.25))
     fig = plots.signals_figure(doc)
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
     assert any("no signals" in t for t in texts), texts
@@ -279,7 +280,7 @@ def test_gif_of_poses_holds_each_pose(documents):
 def test_demo_pictures_are_small(tmp_path):
     motion = load_input(str(SAMPLES / "march.bvh"))
     extract = _extract()
-    doc = extract(motion, source_name="march.bvh") if extract else D.from_motion(motion, np.arange(0, 3.9, 0.25))
+    doc = extract(motion, source_name="march.bvh") if extract else V.from_motion(motion, np.arange(0, 3.9, 0.25))
     paths = plots.demo_pictures(doc, tmp_path, name="march.bvh")
     assert [p.name for p in paths] == ["signals.png", "timing.png", "curves.png", "preview.png"]
     for p in paths:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import document as D
-from staggered_cli import quat
+from staggered_cli import quat, sampling, variables
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.document import from_parts, to_parts
 from staggered_cli.motion import channels_from_local
@@ -17,7 +16,7 @@ from .conftest import BVH_FILES, C3D_FILES, mocap
 
 
 def _bake_channels(doc):
-    rot, tr = D.local_pose(doc, doc.frame_times)
+    rot, tr = sampling.local_pose(doc, doc.frame_times)
     return channels_from_local(doc.source.skeleton, rot, tr, doc.source.channels), rot, tr
 
 
@@ -36,9 +35,9 @@ def bvh(request):
 def test_bvh_round_trip(bvh, refined):
     rng = np.random.default_rng(7)
     pose_t = np.arange(0.0, (bvh.n_frames - 1) * bvh.frame_time - 0.2, 0.25)
-    doc = D.from_motion(bvh, pose_t)
+    doc = variables.from_motion(bvh, pose_t)
     if refined:
-        doc = D.from_motion(bvh, doc.pose_t, _random_refinements(doc, rng))
+        doc = variables.from_motion(bvh, doc.pose_t, _random_refinements(doc, rng))
         assert np.count_nonzero(doc.refinements()) > doc.n_poses
     ch, rot, tr = _bake_channels(doc)
     assert np.abs(ch - bvh.channels).max() < 1e-6
@@ -54,9 +53,9 @@ def test_c3d_round_trip(name):
     m = read_c3d(mocap(name))
     rng = np.random.default_rng(3)
     pose_t = np.arange(0.0, (m.n_frames - 1) * m.frame_time - 0.2, 0.25)
-    doc = D.from_motion(m, pose_t)
-    doc = D.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
-    pts = D.marker_points(doc, doc.frame_times)
+    doc = variables.from_motion(m, pose_t)
+    doc = variables.from_motion(m, doc.pose_t, _random_refinements(doc, rng))
+    pts = sampling.marker_points(doc, doc.frame_times)
     gaps = np.isnan(m.points)
     np.testing.assert_array_equal(np.isnan(pts), gaps)
     assert np.nanmax(np.abs(pts - m.points)) < 1e-6 * m.figure_height()
@@ -64,7 +63,7 @@ def test_c3d_round_trip(name):
 
 def test_restructure_keeps_the_motion_and_retime_warps_it():
     m = read_bvh(mocap("cmu_02_01_walk.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.2))
+    doc = variables.from_motion(m, np.arange(0.0, (m.n_frames - 1) * m.frame_time, 0.2))
     rot = doc.tracks[1]
     before = evaluate(rot, doc.frame_times)
     # drop every other pose's knots (keeping the first and last): a cull
@@ -88,7 +87,7 @@ def test_restructure_keeps_the_motion_and_retime_warps_it():
 
 def test_parts_round_trip_exactly():
     m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
-    doc = D.from_motion(m, np.arange(0.0, 2.0, 0.3))
+    doc = variables.from_motion(m, np.arange(0.0, 2.0, 0.3))
     manifest, arrays = to_parts(doc)
     back = from_parts(manifest, arrays)
     m2, a2 = to_parts(back)

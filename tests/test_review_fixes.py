@@ -193,11 +193,11 @@ def test_a_constraint_added_by_hand_pins_its_joint(walk, tmp_path):
 def test_detecting_again_on_a_retimed_document_keeps_its_time(walk):
     """constraints --detect runs on the captured motion; on a document whose
     poses were retimed, the new constraints follow the retimed plants."""
-    from staggered_cli.cli.constraints import _detect
+    from staggered_cli.ops.constraints import redetect
 
     _, doc = walk
     few = cull.keep_poses(doc, cull.choose(doc, keep="6", ignore_contacts=True))
     moved = timing.retime_pose(few, 2, few.pose_t[2] + 0.15)
-    again = _detect(moved, None, None, None)
+    again = redetect(moved, None, None, None)
     key = lambda c: (c.joint, round(c.start, 6), round(c.end, 6))  # noqa: E731
     assert sorted(map(key, again)) == sorted(map(key, moved.constraints))

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import document as D
-from staggered_cli import quat
+from staggered_cli import quat, sampling, variables
 from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
 from staggered_cli.io.document import document_bytes, from_parts, parse_document, to_parts
@@ -169,8 +168,8 @@ def test_from_bvh_takes_values_by_joint_name(run_doc, tmp_path):
     )
     assert r.exit_code == 0, r.stderr
     edited = load(r.stdout_bytes)
-    rot, tr = D.local_pose(edited, doc.pose_t[k : k + 1])
-    rot0, tr0 = D.local_pose(doc, doc.pose_t[k : k + 1])
+    rot, tr = sampling.local_pose(edited, doc.pose_t[k : k + 1])
+    rot0, tr0 = sampling.local_pose(doc, doc.pose_t[k : k + 1])
     sk = m.skeleton
     inside = sk.subtree(sk.index("Spine"))
     for j in range(sk.n_joints):
@@ -185,7 +184,7 @@ def test_from_bvh_takes_values_by_joint_name(run_doc, tmp_path):
     # (with root=True the root's place and heading come from the file too)
     values = E.values_from_motion(doc, blender, frame)
     whole = E.edit_pose(doc, k, values=values, root=True)
-    rot, tr = D.local_pose(whole, doc.pose_t[k : k + 1])
+    rot, tr = sampling.local_pose(whole, doc.pose_t[k : k + 1])
     assert np.degrees(quat.angle_between(rot[0], blender.local_rotations()[frame])).max() < 1e-6
     np.testing.assert_allclose(tr[0], blender.local_translations()[frame], atol=1e-6)
 
@@ -233,8 +232,8 @@ def test_exaggerate_keeps_the_root_in_place(walk_doc):
     assert moved_rot > 1.0
     # the baked root stays where it was over the whole clip
     t = doc.frame_times
-    _, tr0 = D.local_pose(doc, t)
-    _, tr1 = D.local_pose(ex, t)
+    _, tr0 = sampling.local_pose(doc, t)
+    _, tr1 = sampling.local_pose(ex, t)
     np.testing.assert_allclose(tr1, tr0, atol=1e-9)
     # naming the root's joint scales its translation too
     for name in (root, "Hips"):
@@ -252,7 +251,7 @@ def test_exaggerate_keeps_the_root_in_place(walk_doc):
 
 def test_exaggerate_through_the_cli(tmp_path):
     m = read_bvh(SAMPLES / "march.bvh")
-    doc = D.from_motion(m, np.arange(0.0, 4.0, 0.3))
+    doc = variables.from_motion(m, np.arange(0.0, 4.0, 0.3))
     manifest, arrays = to_parts(doc)
     path = tmp_path / "march.stag"
     path.write_bytes(document_bytes(manifest, arrays, "npz"))

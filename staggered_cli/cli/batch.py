@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from .main import PROG
+from .main import COMMANDS, PROG
 
 
 def _progress_wanted() -> bool:
@@ -48,7 +48,7 @@ def batch(ctx, in_dir, out_dir, steps, jobs, force, dry_run):
     from .. import batch as B
 
     start = time.perf_counter()
-    parsed = B.parse_steps(steps)
+    parsed = B.parse_steps(steps, COMMANDS)
     todo, skipped = B.plan(in_dir, out_dir, force)
     workers = jobs or os.cpu_count() or 1
     if dry_run:
@@ -78,7 +78,7 @@ def batch(ctx, in_dir, out_dir, steps, jobs, force, dry_run):
             bar.update(1)
 
     try:
-        results = skipped + B.run_batch(todo, parsed, workers, on_result=report)
+        results = skipped + B.run_batch(todo, parsed, workers, COMMANDS, on_result=report)
     finally:
         if bar is not None:
             bar.close()

@@ -31,64 +31,6 @@ def parse_span(value: str) -> tuple[str, float, float]:
     return joint, start, end
 
 
-def _check_span(doc, joint: str, start: float, end: float) -> tuple[str, float, float]:
-    """A constraint to add must name a joint (with a chain to solve) or marker,
-    and lie within the clip: (the document's own name for it, start, end)."""
-    from ..errors import UsageError
-    from ..ik import two_bone_chain
-    from ..motion import BvhMotion
-
-    joint = doc.target_name(joint)  # exact, without subject prefix, or @part; else UsageError
-    if isinstance(doc.source, BvhMotion):
-        two_bone_chain(doc.source.skeleton, joint)  # no chain to solve: UsageError
-    half = 0.5 * doc.frame_time  # times as the listing prints them (4 decimals) must be accepted
-    if start < -half or end > doc.duration + half:
-        raise UsageError(
-            f"constraint {joint}@{start:g}:{end:g} must lie within the clip (0 to {doc.seconds(doc.duration)})"
-        )
-    return joint, max(start, 0.0), min(end, doc.duration)
-
-
-def _detect(doc, joints: list[str] | None, min_contact: float | None, tolerance: float | None) -> tuple:
-    """The document's constraints with those on the detected joints replaced by
-    a fresh detection on the source motion; unset options come from the
-    document's extract parameters, then the detector's defaults."""
-    from ..contacts import DEFAULT_MIN_CONTACT, DEFAULT_TOLERANCE, contact_joints, detect_contacts
-
-    params = doc.parameters
-    if joints is None and params.get("contact_joints"):
-        joints = [str(j) for j in params["contact_joints"]]
-    if min_contact is None:
-        min_contact = float(params.get("min_contact", DEFAULT_MIN_CONTACT))
-    if tolerance is None:
-        tolerance = float(params.get("contact_tolerance", DEFAULT_TOLERANCE))
-    names = set(contact_joints(doc.source, joints))
-    found = detect_contacts(doc.source, sorted(names), min_duration=min_contact, tolerance=tolerance)
-    return tuple(c for c in doc.constraints if c.joint not in names) + tuple(_retimed(doc, f) for f in found)
-
-
-def _retimed(doc, found):
-    """A constraint detected on the source, moved into the document's time.
-
-    Detection runs on the captured motion, in source time.  Where timing
-    edits moved the joint's earlier constraints, their source and current
-    spans give the joint's time map; the new constraint follows it (its
-    source span stays the detected one).
-    """
-    import numpy as np
-
-    pairs = [(0.0, 0.0), (doc.duration, doc.duration)]
-    for c in doc.constraints:
-        if c.joint == found.joint:
-            (s0, s1), (t0, t1) = c.source_span, (c.start, c.end)
-            pairs += [(s0, t0), (s1, t1)]
-    src, cur = (np.array(x) for x in zip(*sorted(pairs), strict=True))
-    start, end = (float(x) for x in np.interp([found.start, found.end], src, cur))
-    if (start, end) == (found.start, found.end):
-        return found
-    return type(found)(found.joint, start, end, found.start, found.end)
-
-
 def _table(constraints) -> str:
     width = max([len("joint")] + [len(c.joint) for c in constraints])
     lines = [f"{'#':>3}  {'joint':<{width}}  {'start':>9}  {'end':>9}  {'duration':>9}"]
@@ -147,6 +89,7 @@ def constraints(
     from dataclasses import replace
 
     from ..document import Constraint
+    from ..ops.constraints import checked_span, redetect
 
     editing = bool(adds or removes or detect)
     if not detect and (contact_joints is not None or min_contact is not None or contact_tolerance is not None):
@@ -182,7 +125,7 @@ def constraints(
             raise click.BadParameter(
                 "expected comma-separated joint names or marker labels", param_hint="--contact-joints"
             )
-        cons = _detect(doc, joints, min_contact, contact_tolerance)
+        cons = redetect(doc, joints, min_contact, contact_tolerance)
     if removes:
         n = len(cons)
         bad = [k for k in removes if not -n <= k < n]
@@ -203,7 +146,7 @@ def constraints(
             raise UsageError(f"--remove {twice}: constraint {twice % n} is named more than once")
         cons = tuple(c for i, c in enumerate(cons) if i not in drop)
     for joint, start, end in spans:
-        joint, start, end = _check_span(doc, joint, start, end)
+        joint, start, end = checked_span(doc, joint, start, end)
         cons = cons + (Constraint(joint, start, end, pin=True),)  # the user says it is planted
     cons = tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint)))
     write_document(replace(doc, constraints=cons), output, fmt, force)

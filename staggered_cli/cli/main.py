@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import importlib
 import io
-import logging
 import os
 import sys
 
@@ -37,9 +36,8 @@ import click
 
 from .. import __version__
 from ..errors import StaggeredError
+from ..log import PROG, configure_logging
 from .options import INPUT_KEY
-
-PROG = "staggered"
 
 #: command name -> "module:attribute" of its click command.
 COMMANDS: dict[str, str] = {
@@ -63,8 +61,6 @@ COMMANDS: dict[str, str] = {
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 EXIT_BROKEN_PIPE = 141
-
-log = logging.getLogger("staggered_cli")
 
 
 class LazyGroup(click.Group):
@@ -214,27 +210,6 @@ class StaggeredGroup(LazyGroup):
                 err=True,
             )
             ctx.exit(1)
-
-
-class _StderrHandler(logging.Handler):
-    """Logs to whatever ``sys.stderr`` is at the time of the call (so that
-    CliRunner's captured stream is used in tests)."""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        try:
-            sys.stderr.write(self.format(record) + "\n")
-        except Exception:  # logging must never take the command down
-            self.handleError(record)
-
-
-def configure_logging(verbose: int, quiet: int) -> None:
-    """WARNING by default; each -v one level more (INFO, DEBUG), -q one less."""
-    level = min(max(logging.WARNING - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
-    handler = _StderrHandler()
-    handler.setFormatter(logging.Formatter(f"{PROG}: %(levelname)s: %(message)s"))
-    log.handlers[:] = [handler]
-    log.setLevel(level)
-    log.propagate = False
 
 
 @click.group(

@@ -12,9 +12,10 @@ import logging
 import numpy as np
 
 from .. import placement, quat
-from ..document import Document, check_pose_index, reprioritized
+from ..document import Document, check_pose_index
 from ..errors import UsageError
 from ..representation import ROTATION, evaluate, evaluate_at, knots_from_poses, pose_arrays, restructure
+from ..signals import reprioritized
 
 log = logging.getLogger(__name__)
 

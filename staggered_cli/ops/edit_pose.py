@@ -19,23 +19,12 @@ import numpy as np
 from .. import quat
 from ..document import Document
 from ..errors import DataError, UsageError
+from ..kinds import ops_for
 from ..representation import ROTATION, TRANSLATION, Track, evaluate, pose_arrays
 
 #: Bounds of geometric edits: beyond them a value is a typo, not a pose.
 MAX_TRANSLATE = 1000.0  # figure heights
 MAX_EXAGGERATE = 100.0
-
-
-def _oplus(kind: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a + b if kind == TRANSLATION else quat.mul(a, b)
-
-
-def _ominus(kind: str, c: np.ndarray, a: np.ndarray) -> np.ndarray:
-    return c - a if kind == TRANSLATION else quat.mul(quat.conj(a), c)
-
-
-def _scale(kind: str, d: np.ndarray, w: float) -> np.ndarray:
-    return d * w if kind == TRANSLATION else quat.exp(quat.log(d) * w)
 
 
 def pose_values(doc: Document, k: int, on: str) -> list[np.ndarray]:
@@ -51,7 +40,7 @@ def pose_values(doc: Document, k: int, on: str) -> list[np.ndarray]:
 def average_pose(doc: Document) -> list[np.ndarray]:
     """Per track, the mean over the source clip's frames (rotations: the
     normalized mean of hemisphere-aligned quaternions, the chordal L2 mean)."""
-    from ..document import dense_variables
+    from ..variables import dense_variables
 
     out = []
     for kind, _, _, dense in dense_variables(doc.source):
@@ -75,7 +64,7 @@ def _apply_delta(doc: Document, k: int, deltas: list[np.ndarray | None], on: str
         var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
         mine = tr.knot_pose == k
         knot_v = tr.knot_v.copy()
-        knot_v[mine] = _oplus(tr.kind, tr.knot_v[mine], d[var[mine]])
+        knot_v[mine] = ops_for(tr.kind).oplus(tr.knot_v[mine], d[var[mine]])
         if tr.kind == ROTATION:
             knot_v = quat.normalize(knot_v)
         tracks.append(tr.with_knot_values(knot_v))
@@ -83,7 +72,7 @@ def _apply_delta(doc: Document, k: int, deltas: list[np.ndarray | None], on: str
 
 
 def _identity_deltas(doc: Document) -> list[np.ndarray]:
-    return [np.zeros((tr.n_vars, 3)) if tr.kind == TRANSLATION else quat.identity((tr.n_vars,)) for tr in doc.tracks]
+    return [ops_for(tr.kind).identity((tr.n_vars,)) for tr in doc.tracks]
 
 
 def offsets(
@@ -222,9 +211,10 @@ def edit_pose(
         mask = exaggeration_mask(doc, joints, subtree)
         deltas = []
         for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
-            target = _oplus(tr.kind, r, _scale(tr.kind, _ominus(tr.kind, c, r), exaggerate))
-            d = _ominus(tr.kind, target, c)
-            d[~m] = 0.0 if tr.kind == TRANSLATION else quat.identity()
+            op = ops_for(tr.kind)
+            target = op.oplus(r, op.scale(op.ominus(c, r), exaggerate))
+            d = op.ominus(target, c)
+            d[~m] = op.identity()
             deltas.append(d)
         if doc.kind == "c3d" and not joints:
             deltas = [_planted_held(doc, times, k, deltas[0])]
@@ -236,8 +226,9 @@ def edit_pose(
             values = _keep_place(doc, cur, values)
         deltas = []
         for tr, c, v, m in zip(doc.tracks, cur, values, mask, strict=True):
-            d = _ominus(tr.kind, v, c)
-            d[~m] = 0.0 if tr.kind == TRANSLATION else quat.identity()
+            op = ops_for(tr.kind)
+            d = op.ominus(v, c)
+            d[~m] = op.identity()
             deltas.append(d)
         doc = apply(doc, deltas)
     return doc
@@ -416,7 +407,7 @@ def values_from_motion(
     out = []
     missing: list[str] = []
     for tr, m in zip(doc.tracks, mask, strict=True):
-        vals = np.zeros((tr.n_vars, 3)) if tr.kind == TRANSLATION else quat.identity((tr.n_vars,))
+        vals = ops_for(tr.kind).identity((tr.n_vars,))
         for i, target in enumerate(tr.targets):
             if not m[i]:
                 continue

@@ -27,7 +27,7 @@
    the "closer to its own pose" rule keeps every variable's knots in order.
    Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
    last pose) stays for ``cull --by paper``.
-7. Splines and displacement maps: :func:`staggered_cli.document.from_motion`.
+7. Splines and displacement maps: :func:`staggered_cli.variables.from_motion`.
 
 Significance gate
     The scaled curvature ignores amplitude: a figure swaying by a centimetre
@@ -49,9 +49,10 @@ import numpy as np
 
 from .. import contacts as contact_detection
 from .. import ik, placement, signals
-from ..document import Document, dense_variables, from_motion
+from ..document import Document
 from ..errors import DataError, UsageError
 from ..motion import BvhMotion, MarkerMotion, rate_problem
+from ..variables import dense_variables, from_motion
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -508,9 +509,7 @@ def extract(
     pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH)
     pose_t = pose_f * float(motion.frame_time)
 
-    priority = np.full(len(pose_f), np.inf)
-    if len(pose_f) > 2:
-        priority[1:-1] = P[pose_f[1:-1]] * (pose_t[2:] - pose_t[:-2])
+    priority = signals.pose_priority(P, pose_f, pose_t)
 
     peaks = refinement_frames(ev.p, pose_f, window)
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)

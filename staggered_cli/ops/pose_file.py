@@ -18,10 +18,12 @@ import logging
 import numpy as np
 
 from .. import quat
-from ..document import Document, reference_channels, require_bvh, variable_layout
+from ..document import Document, require_bvh, variable_layout
 from ..errors import DataError, UsageError
+from ..kinds import ops_for
 from ..motion import BvhMotion, channels_from_local
 from ..representation import ROTATION, TRANSLATION, Layer, Track, knots_from_poses, pose_arrays
+from ..sampling import reference_channels
 from .edit_pose import joint_mask
 
 #: What counts as a change when a pose file comes back (issue 15).
@@ -194,14 +196,13 @@ def apply_pose_file(
                 name,
             )
     tracks, touched = [], np.zeros((doc.n_poses, sk.n_joints), dtype=bool)
+    per_kind = {ROTATION: (rot_changed, doc_rot, file_rot), TRANSLATION: (tra_changed, doc_tra, file_tra)}
     for tr, m in zip(doc.tracks, mask, strict=True):
         t = tr.targets
-        if tr.kind == ROTATION:
-            change = rot_changed[:, t] & m[None, :]
-            delta = quat.mul(quat.conj(doc_rot[:, t]), file_rot[:, t])  # (K, V, 4): v_new ⊖ v
-        else:
-            change = tra_changed[:, t] & m[None, :]
-            delta = file_tra[:, t] - doc_tra[:, t]
+        op = ops_for(tr.kind)
+        changed, ours, theirs = per_kind[tr.kind]
+        change = changed[:, t] & m[None, :]
+        delta = op.ominus(theirs[:, t], ours[:, t])  # (K, V, D): v_new ⊖ v
         if not change.any():
             tracks.append(tr)
             continue
@@ -210,10 +211,9 @@ def apply_pose_file(
         hit = change[tr.knot_pose, var]
         knot_v = tr.knot_v.copy()
         d = delta[tr.knot_pose[hit], var[hit]]
+        knot_v[hit] = op.oplus(tr.knot_v[hit], d)
         if tr.kind == ROTATION:
-            knot_v[hit] = quat.normalize(quat.mul(tr.knot_v[hit], d))
-        else:
-            knot_v[hit] = tr.knot_v[hit] + d
+            knot_v[hit] = quat.normalize(knot_v[hit])  # unit quaternions stay unit
         tracks.append(_with_knot_values(tr, knot_v))
     return doc.with_tracks(tuple(tracks)), int(touched.any(axis=1).sum()), int(touched.any(axis=0).sum())
 

@@ -14,9 +14,12 @@ import logging
 
 import numpy as np
 
-from ..document import Document, check_pose_index, reprioritized
+from ..document import Document, check_pose_index
 from ..errors import KnotOrderError, UsageError
+from ..kinds import ROTATION, TRANSLATION
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
+from ..signals import reprioritized
+from ..timewarp import warp
 from . import marker_chain
 from .edit_pose import joint_mask
 
@@ -124,7 +127,7 @@ def static_variables(tr: Track, tolerance: float = 1e-9) -> np.ndarray:
     no displacement (e.g. Bandai's constant position channels on every joint)."""
     var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
     first = tr.knot_v[tr.knot_ptr[:-1]]
-    if tr.kind == "rotation":
+    if tr.kind == ROTATION:
         knot_dev = 1.0 - np.abs(np.sum(tr.knot_v * first[var], axis=1))
         owner = np.repeat(np.arange(tr.n_vars), np.diff(tr.samp_ptr))
         disp = 1.0 - np.abs(tr.samp_d[:, 0])
@@ -154,10 +157,10 @@ def _warp_constraints(doc: Document, warps: dict) -> tuple:
             sk = doc.source.skeleton
             j = sk.parents[sk.names.index(c.joint)] if c.joint in sk.names else -1
             while j >= 0 and warp is None:
-                warp = warps.get(("rotation", int(j)))
+                warp = warps.get((ROTATION, int(j)))
                 j = sk.parents[j]
         elif c.joint in doc.source.labels:
-            warp = warps.get(("translation", doc.source.labels.index(c.joint)))
+            warp = warps.get((TRANSLATION, doc.source.labels.index(c.joint)))
         out.append(c if warp is None else c.warped(*warp))
     return tuple(out)
 
@@ -188,7 +191,7 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     warped_t = tr.knot_t.copy()
     for i in range(tr.n_vars):
         sl = tr.knot_slice(i)
-        warped_t[sl] = np.interp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
+        warped_t[sl] = warp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
     warped = with_knot_times(tr, warped_t)
     # editing knots are measured again where a variable's timing changed; the
     # others keep their values to the bit, so that their segments are not refitted

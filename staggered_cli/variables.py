@@ -1,0 +1,124 @@
+"""Dense motion as control variables, and a document built from it.
+
+A clip's variables are its joints' local rotations and translations (BVH,
+in the order of :func:`staggered_cli.document.variable_layout`) or its
+markers' positions (C3D, gaps filled); :func:`from_motion` fits splines and
+displacement maps to them at chosen pose times and refinements.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from .document import Constraint, Document, seconds, variable_layout
+from .errors import UsageError
+from .motion import BvhMotion, MarkerMotion
+from .representation import ROTATION, TRANSLATION, build_track
+
+
+def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]]:
+    """The control variables of a clip as (kind, names, targets, dense values (T, V, D))."""
+    layout = variable_layout(motion)
+    if isinstance(motion, BvhMotion):
+        dense = {ROTATION: motion.local_rotations(), TRANSLATION: motion.local_translations()}  # cached per clip
+        return [(kind, names, targets, dense[kind][:, targets]) for kind, names, targets in layout]
+    return [(*layout[0], fill_gaps(motion.points))]
+
+
+def fill_gaps(points: np.ndarray) -> np.ndarray:
+    """Markers with NaN gaps filled by linear interpolation (held at the ends;
+    a marker never seen is zero).  The gaps are put back when baking."""
+    T, M, _ = points.shape
+    out = np.array(points, dtype=float, copy=True)
+    frames = np.arange(T)
+    seen = np.all(np.isfinite(out), axis=2)
+    for m in range(M):
+        ok = seen[:, m]
+        if ok.all():
+            continue
+        if not ok.any():
+            out[:, m] = 0.0
+            continue
+        for ax in range(3):
+            out[:, m, ax] = np.interp(frames, frames[ok], out[ok, m, ax])
+    return out
+
+
+def from_motion(
+    motion: BvhMotion | MarkerMotion,
+    pose_t: np.ndarray,
+    refine: np.ndarray | None = None,
+    *,
+    priority: np.ndarray | None = None,
+    source_name: str = "",
+    source_bytes: bytes | None = None,
+    constraints: tuple[Constraint, ...] = (),
+    signals: dict | None = None,
+    parameters: dict | None = None,
+) -> Document:
+    """Build a document with poses at chosen times and refinements.
+
+    Parameters
+    ----------
+    motion : the dense clip.
+    pose_t : (K,) pose times in seconds; the first and last frame are added
+        when missing.  Times are used as given (they need not be on frames).
+    refine : (K, V) refinements in seconds over all variables (translations
+        first, then rotations); zero by default.  The first and last poses
+        are kept unrefined.
+
+    Raises
+    ------
+    UsageError if poses lie outside the clip or knots would cross.
+    """
+    T = motion.n_frames
+    ft = float(motion.frame_time)
+    frame_t = np.arange(T) * ft
+    pose_t = np.asarray(pose_t, dtype=float)
+    end = frame_t[-1]
+    if np.any(pose_t < -1e-9) or np.any(pose_t > end + 1e-9):
+        raise UsageError(f"pose times must lie within the clip (0 to {seconds(end, ft)})")
+    variables = dense_variables(motion)
+    V = sum(len(names) for _, names, _, _ in variables)
+    if refine is None:
+        refine = np.zeros((len(pose_t), V))
+    refine = np.asarray(refine, dtype=float)
+    if refine.shape != (len(pose_t), V):
+        raise UsageError(f"refinements must have shape ({len(pose_t)}, {V}), got {refine.shape}")
+    # first and last frame always carry an unrefined pose
+    extra = [t for t in (0.0, end) if not np.any(np.abs(pose_t - t) < 1e-9)]
+    if extra:
+        pose_t = np.concatenate([pose_t, extra])
+        refine = np.concatenate([refine, np.zeros((len(extra), V))])
+        if priority is not None:
+            priority = np.concatenate([priority, np.full(len(extra), np.inf)])
+    order = np.argsort(pose_t, kind="stable")
+    pose_t, refine = pose_t[order], refine[order]
+    if np.any(np.diff(pose_t) <= 0):
+        raise UsageError("pose times must be distinct")
+    refine[0] = 0.0
+    refine[-1] = 0.0
+    if priority is None:
+        priority = np.zeros(len(pose_t))
+        priority[[0, -1]] = np.inf
+    else:
+        priority = np.asarray(priority, dtype=float)[order]
+    tracks, col = [], 0
+    for kind, names, targets, dense in variables:
+        n = len(names)
+        tracks.append(build_track(kind, names, targets, frame_t, dense, pose_t, refine[:, col : col + n]))
+        col += n
+    sha = hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else ""
+    return Document(
+        pose_t=pose_t,
+        priority=priority,
+        tracks=tuple(tracks),
+        source=motion,
+        source_name=source_name,
+        source_sha256=sha,
+        constraints=tuple(constraints),
+        signals=dict(signals or {}),
+        parameters=dict(parameters or {}),
+    )

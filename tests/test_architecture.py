@@ -1,0 +1,123 @@
+"""The import graph tells the architecture (issue 16).
+
+Arrows point inwards: the command line (``staggered_cli.cli``) and the file
+formats (``staggered_cli.io``) use the operations (``staggered_cli.ops``),
+which use the model and the math (every other module of the package); never
+the other way.  Imports are read from the source with :mod:`ast`, imports
+inside functions included, so a lazy import counts as much as one at the
+top of a module.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "staggered_cli"
+
+#: Top-level modules outside the model, and why.
+OUTER = {
+    "staggered_cli.__main__": "the entry point: runs the command line",
+    "staggered_cli.batch": "runs the commands over a library (checked below: it must not import cli)",
+    "staggered_cli.plots": "draws documents into PNG files: bakes them (ops) and writes (io)",
+}
+
+#: Known exceptions, (module, imported module): none since the format
+#: schema moved to io/document.py (the test fails while one is listed but unused).
+KNOWN: set[tuple[str, str]] = set()
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """Every module ``path`` imports (absolute names), at any depth of its code.
+
+    ``from X import y`` counts as importing ``X`` and ``X.y`` (``y`` may be a
+    submodule, as in ``from .. import io``).
+    """
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package
+                for _ in range(node.level - 1):
+                    base = base.rpartition(".")[0]
+                module = f"{base}.{node.module}" if node.module else base
+            else:
+                module = node.module or ""
+            found.add(module)
+            found |= {f"{module}.{alias.name}" for alias in node.names}
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    return {_module_name(p): _imports(p) for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+GRAPH = _graph()
+
+
+def _under(name: str, package: str) -> bool:
+    return name == package or name.startswith(package + ".")
+
+
+def _layer(module: str) -> str:
+    for layer in ("cli", "io", "ops"):
+        if _under(module, f"staggered_cli.{layer}"):
+            return layer
+    if module == "staggered_cli" or module in OUTER:
+        return "outer"
+    return "model"
+
+
+def _violations(layers: tuple[str, ...], forbidden: tuple[str, ...]) -> set[tuple[str, str]]:
+    out = set()
+    for module, imported in GRAPH.items():
+        if _layer(module) not in layers:
+            continue
+        for name in imported:
+            for package in forbidden:
+                if _under(name, package):
+                    # the module itself, not the name imported from it
+                    target = name if name in GRAPH else name.rpartition(".")[0]
+                    out.add((module, target if _under(target, package) else package))
+    return out
+
+
+def test_the_graph_sees_the_whole_package():
+    expected = {"staggered_cli.document", "staggered_cli.ops.bake", "staggered_cli.cli.main", "staggered_cli.io.bvh"}
+    assert expected <= set(GRAPH)
+    # the parser resolves relative imports: ops/bake's ``from ..document import Document``
+    assert "staggered_cli.document" in GRAPH["staggered_cli.ops.bake"]
+    assert _layer("staggered_cli.kinds") == "model" and _layer("staggered_cli.ops.cull") == "ops"
+
+
+@pytest.mark.parametrize(
+    ("layers", "forbidden"),
+    [
+        (("ops", "model"), ("staggered_cli.cli",)),
+        (("ops", "model"), ("staggered_cli.io",)),
+        (("model",), ("staggered_cli.ops",)),
+    ],
+    ids=["no-cli", "no-io", "model-no-ops"],
+)
+def test_ops_the_model_and_the_math_import_no_outer_layer(layers, forbidden):
+    found = _violations(layers, forbidden)
+    known = {pair for pair in KNOWN if any(_under(pair[1], f) for f in forbidden)}
+    against = sorted(found - known)
+    assert not against, f"imports against the arrows (module, imported): {against}"
+    gone = sorted(known - found)
+    assert not gone, f"known exceptions that no longer occur, remove them from KNOWN: {gone}"
+
+
+def test_batch_does_not_import_the_command_line():
+    assert not {name for name in GRAPH["staggered_cli.batch"] if _under(name, "staggered_cli.cli")}
