@@ -46,7 +46,7 @@ from .errors import DataError, StaggeredError, UsageError
 Commands = Mapping[str, str]
 
 #: Commands that read a document and write a document: the possible steps.
-STEP_COMMANDS = ("cull", "edit-pose", "succession", "randomize")
+STEP_COMMANDS = ("cull", "edit-pose", "succession", "randomize", "layer", "detail")
 
 #: File name endings (compared without case) that the batch picks up.
 EXTENSIONS = (".bvh", ".c3d")
@@ -174,6 +174,8 @@ def parse_steps(text: str | None, commands: Commands) -> list[Step]:
             else:
                 what = f"unknown command {name!r}"
             raise UsageError(f"{where}: {what} (steps: {', '.join(STEP_COMMANDS)})")
+        if name == "layer" and "--list" in args:
+            raise UsageError(f"{where}: 'layer --list' does not turn a document into a document")
         if any(a.startswith(("-o", "--output")) for a in args):
             raise UsageError(f"{where}: a step takes no -o: the batch passes each step's output to the next")
         command = _command(name, commands)

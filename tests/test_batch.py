@@ -167,6 +167,12 @@ def test_steps_change_the_motion_and_cull_alone_does_not(tmp_path):
     assert staggered.shape == source.shape
     assert np.abs(staggered - source).max() > 1.0  # degrees: the left arm's timing moved
 
+    # layer and detail are steps too: without its detail the walk changes
+    r = _batch(str(lib), str(tmp_path / "soft"), "--steps", "layer --add --keep 4|detail --gain 0", "--jobs", "1")
+    assert r.exit_code == 0, r.output
+    soft = _channels(tmp_path / "soft" / "walk.bvh")
+    assert soft.shape == source.shape and np.abs(soft - source).max() > 0.1
+
     if MAKE is not None and STAGGERED.exists():
         m = _make("-j2", "batch", f"IN={lib}", f"OUT={tmp_path / 'make'}", f"STEPS={STEPS}")
         assert m.returncode == 0, m.stdout + m.stderr
@@ -184,6 +190,7 @@ def test_steps_change_the_motion_and_cull_alone_does_not(tmp_path):
         ("cull --keep 30% -o x.stag", ["step 1", "no -o"]),
         ("cull --keep 30% walk.stag", ["step 1", "no FILE"]),
         ("cull --keep 30%||cull --keep 5", ["step 2", "empty step"]),
+        ("layer --add --keep 4|layer --list", ["step 2", "'layer --list' does not turn a document"]),
     ],
 )
 def test_bad_steps_fail_before_any_file(tmp_path, steps, words):
