@@ -198,6 +198,16 @@ def seconds(t: float, frame_time: float, *, sign: bool = False) -> str:
     return f"{float(t):{'+' if sign else ''}.{time_decimals(frame_time)}f} s"
 
 
+def check_time_range(doc: Document, time_range: tuple[float, float]) -> tuple[float, float]:
+    """``--time A:B`` checked against the clip: A <= B, and overlapping it."""
+    a, b = time_range
+    if np.isnan(a) or np.isnan(b) or a > b:
+        raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
+    if b < 0 or a > doc.duration + 1e-9:
+        raise UsageError(f"--time {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
+    return float(a), float(b)
+
+
 def check_pose_index(doc: Document, k: int) -> int:
     if not -doc.n_poses <= k < doc.n_poses:
         raise UsageError(f"pose {k} is out of range (the document has poses 0 to {doc.n_poses - 1})")

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from .. import quat
-from ..document import MAX_LAYERS, Document
+from ..document import MAX_LAYERS, Document, check_time_range
 from ..errors import UsageError
 from ..representation import ROTATION, Track, evaluate_at, offset_layer, sample_times
 
@@ -257,11 +257,7 @@ def detail(
     if not np.isfinite(gain) or not 0.0 <= gain <= MAX_GAIN:
         raise UsageError(f"--gain must be a number from 0 to {MAX_GAIN:g}, got {gain:g}")
     if time_range is not None:
-        a, b = time_range
-        if np.isnan(a) or np.isnan(b) or a > b:
-            raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
-        if b < 0 or a > doc.duration + 1e-9:
-            raise UsageError(f"--time {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
+        check_time_range(doc, time_range)
     tracks = []
     for n, tr in enumerate(doc.tracks):
         for li, lay in enumerate(tr.layers):

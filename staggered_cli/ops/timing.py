@@ -14,7 +14,7 @@ import logging
 
 import numpy as np
 
-from ..document import Document, check_pose_index
+from ..document import Document, check_pose_index, check_time_range
 from ..errors import KnotOrderError, UsageError
 from ..kinds import ROTATION, TRANSLATION
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
@@ -51,11 +51,7 @@ def select_poses(
         for k in poses:
             mask[check_pose_index(doc, k)] = True
     if time_range is not None:
-        a, b = time_range
-        if np.isnan(a) or np.isnan(b) or a > b:
-            raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
-        if b < 0 or a > doc.duration + 1e-9:
-            raise UsageError(f"--time {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
+        a, b = check_time_range(doc, time_range)
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if interior and K:
         if poses is not None and (mask[0] or mask[-1]):
