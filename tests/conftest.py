@@ -93,14 +93,18 @@ def dev_bake(name: str):
 
 
 @functools.cache
-def _cli_extract(name: str) -> bytes:
-    from click.testing import CliRunner
+def cli_extract(name: str) -> bytes:
+    """What ``staggered extract NAME -o -`` writes: the bytes of
+    :func:`dev_document` with the source's SHA-256, as the command records it
+    (test_extract checks that they are the command's, byte for byte)."""
+    import hashlib
+    from dataclasses import replace
 
-    from staggered_cli.cli.main import cli
+    from staggered_cli.document import to_parts
+    from staggered_cli.io.document import document_bytes
 
-    r = CliRunner().invoke(cli, ["extract", str(mocap(name)), "-o", "-"])
-    assert r.exit_code == 0, r.stderr
-    return r.stdout_bytes
+    sha = hashlib.sha256(mocap(name).read_bytes()).hexdigest()
+    return document_bytes(*to_parts(replace(dev_document(name), source_sha256=sha)), "npz")
 
 
 def cli_document(name: str, *steps: list[str]) -> bytes:
@@ -110,7 +114,7 @@ def cli_document(name: str, *steps: list[str]) -> bytes:
 
     from staggered_cli.cli.main import cli
 
-    data = _cli_extract(name)
+    data = cli_extract(name)
     for step in steps:
         r = CliRunner().invoke(cli, [*step, "-", "-o", "-"], input=data)
         assert r.exit_code == 0, r.stderr
