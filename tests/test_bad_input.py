@@ -42,7 +42,9 @@ from .fuzz import mutate as mu
 MAX_SECONDS = 5.0
 #: Cases per format (BVH, C3D, document) in CI; set STAGGERED_FUZZ_EXAMPLES
 #: for a longer run by hand (the cases stay the same for the same number).
-EXAMPLES = int(os.environ.get("STAGGERED_FUZZ_EXAMPLES", "520"))
+#: 200 still draws every kind of mutation of every format (the tests check
+#: it) in about 40 % of the time of the 520 that ran before.
+EXAMPLES = int(os.environ.get("STAGGERED_FUZZ_EXAMPLES", "200"))
 #: Peak memory allowed on a crafted input, bytes (whole process, in a subprocess).
 MAX_PEAK = 200 << 20
 
