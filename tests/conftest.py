@@ -60,6 +60,19 @@ def one_line_error(result, code: int, *needles: str) -> None:
     assert "Traceback" not in result.stderr
 
 
+def short_bvh(name: str, seconds: float) -> bytes:
+    """The BVH file ``name`` cut to its first ``seconds`` of frames: its own
+    header and frame lines, byte for byte, with the frame count changed."""
+    data = mocap(name).read_bytes()
+    at = data.index(b"MOTION")
+    lines = data[at:].splitlines(keepends=True)
+    assert lines[1].split()[0] == b"Frames:" and lines[2].split()[:2] == [b"Frame", b"Time:"], lines[:3]
+    n, frame_time = int(lines[1].split()[1]), float(lines[2].split()[2])
+    keep = min(n, max(2, int(round(seconds / frame_time))))
+    frames = lines[1].replace(str(n).encode(), str(keep).encode(), 1)
+    return data[:at] + lines[0] + frames + lines[2] + b"".join(lines[3 : 3 + keep])
+
+
 # --------------------------------------------------------------------------- shared per session
 
 

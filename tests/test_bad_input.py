@@ -1100,7 +1100,8 @@ def _deflate_bomb(n_bytes: int) -> bytes:
         "version": 1,
     }
     buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=9) as zf:
+    # level 1: half the time of 9, and 4.5 MB for a gigabyte of zeros is still a bomb
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
         zf.writestr(MANIFEST_MEMBER, json.dumps(env))
         with zf.open("a.npy", "w", force_zip64=True) as member:
             member.write(_npy_header((n,)))
