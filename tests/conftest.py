@@ -76,33 +76,60 @@ def short_bvh(name: str, seconds: float) -> bytes:
 # --------------------------------------------------------------------------- shared per session
 
 
+def read_only(value, _seen=None):
+    """``value`` with every numpy array in it (through dataclasses, tuples,
+    lists and dicts) made read-only, so that a test or an operation that
+    writes into a shared value fails where it writes instead of changing
+    what later tests see."""
+    import dataclasses
+
+    import numpy as np
+
+    seen = set() if _seen is None else _seen
+    if id(value) in seen:
+        return value
+    seen.add(id(value))
+    if isinstance(value, np.ndarray):
+        value.flags.writeable = False
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for f in dataclasses.fields(value):
+            read_only(getattr(value, f.name), seen)
+    elif isinstance(value, (tuple, list)):
+        for v in value:
+            read_only(v, seen)
+    elif isinstance(value, dict):
+        for v in value.values():
+            read_only(v, seen)
+    return value
+
+
 @functools.cache
 def dev_motion(name: str):
-    """The clip ``name`` of ../shared/mocap (BvhMotion or MarkerMotion), read once."""
+    """The clip ``name`` of ../shared/mocap (BvhMotion or MarkerMotion), read once (read-only)."""
     path = mocap(name)
     if name.lower().endswith(".c3d"):
         from staggered_cli.io.c3d import read_c3d
 
-        return read_c3d(path)
+        return read_only(read_c3d(path))
     from staggered_cli.io.bvh import read_bvh
 
-    return read_bvh(path)
+    return read_only(read_bvh(path))
 
 
 @functools.cache
 def dev_document(name: str):
-    """``extract`` of the clip ``name`` with the default options, once."""
+    """``extract`` of the clip ``name`` with the default options, once (read-only)."""
     from staggered_cli.ops.extract import extract
 
-    return extract(dev_motion(name), source_name=name)
+    return read_only(extract(dev_motion(name), source_name=name))
 
 
 @functools.cache
 def dev_bake(name: str):
-    """The unedited bake (contact layer on) of :func:`dev_document`, once."""
+    """The unedited bake (contact layer on) of :func:`dev_document`, once (read-only)."""
     from staggered_cli.ops.bake import bake
 
-    return bake(dev_document(name))
+    return read_only(bake(dev_document(name)))
 
 
 @functools.cache
