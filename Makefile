@@ -16,6 +16,9 @@ SAMPLES = $(sort $(wildcard data/samples/*.bvh data/samples/*.c3d))
 BENCHES = $(sort $(wildcard bench/*.py))
 DEMO_OUT := out/demo
 PYTEST_ARGS ?=
+# tests run on this many processes (pytest-xdist), each module on one of them
+# (its module fixtures are built once); TEST_WORKERS=0 runs them in this one
+TEST_WORKERS ?= 2
 
 .PHONY: all demo test test-blender lint bench golden install clean batch _batch-files samples pictures
 
@@ -31,7 +34,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 install: $(STAMP)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 # Blender's bpy wheel (one PyPI wheel, about 374 MB) exists for Python 3.11
 # only and pins numpy < 2: it gets its own venv with the project installed.

@@ -23,7 +23,7 @@ from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.c3d import read_c3d
 
-from .conftest import MOCAP, mocap
+from .conftest import MOCAP, SAMPLES, mocap
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGGERED = Path(sys.executable).parent / "staggered"
@@ -243,3 +243,109 @@ def test_batch_help_imports_no_numpy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"
+
+
+needs_make = pytest.mark.skipif(
+    MAKE is None or not STAGGERED.exists(), reason="GNU make or the staggered executable is not there"
+)
+
+
+UNSUPPORTED = "file name not supported by make batch; use staggered batch"
+
+
+def _make_in(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    """The repository's Makefile run from ``cwd`` (a temporary folder: any
+    stray file lands there, never in the checkout)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MFLAGS", "MAKELEVEL")}
+    return subprocess.run(
+        [MAKE, "-f", str(ROOT / "Makefile"), *args, f"STAGGERED={STAGGERED}", "-o", ".venv/.staggered-installed"],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+
+
+def _usage_error(m: subprocess.CompletedProcess, needle: str) -> None:
+    assert m.returncode == 2, (m.stdout, m.stderr)
+    lines = m.stderr.splitlines()
+    assert len(lines) == 1 and needle in lines[0], m.stderr
+    assert m.stdout == ""
+
+
+@needs_make
+@pytest.mark.parametrize("which", ["IN", "OUT", "both"])
+def test_make_batch_refuses_whitespace_in_in_or_out(tmp_path, which):
+    work = tmp_path / "work"
+    work.mkdir()
+    src = tmp_path / ("in sp" if which != "OUT" else "in")
+    src.mkdir()
+    shutil.copy(SAMPLES / "march.bvh", src / "march.bvh")
+    dst = tmp_path / ("out sp" if which != "IN" else "out")
+    m = _make_in(work, "-k", "batch", f"IN={src}", f"OUT={dst}")
+    _usage_error(m, "must not contain whitespace")
+    assert not dst.exists()
+    assert list(work.iterdir()) == []  # no stray sp/*.err where make ran
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"work", src.name})
+
+
+@needs_make
+@pytest.mark.parametrize("char", [";", "=", ":", "#", "$", '"', "%", "\\", "|", "*"])
+def test_make_batch_refuses_make_special_characters_in_in_or_out(tmp_path, char):
+    work = tmp_path / "work"
+    work.mkdir()
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(SAMPLES / "march.bvh", src / "march.bvh")
+    m = _make_in(work, "-k", "batch", f"IN={src}", f"OUT={tmp_path / ('o' + char + 'x')}")
+    _usage_error(m, "must not contain any of")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in", "work"]
+    assert list(work.iterdir()) == []
+
+
+@needs_make
+def test_make_batch_without_in_is_a_usage_error(tmp_path):
+    _usage_error(_make_in(tmp_path, "batch", f"OUT={tmp_path / 'out'}"), "usage: make")
+
+
+@needs_make
+def test_make_batch_skips_and_reports_names_it_cannot_handle(tmp_path):
+    work = tmp_path / "work"
+    work.mkdir()
+    src = tmp_path / "in"
+    good = ["a.bvh", "sub dir/b c.bvh"]
+    bad = ["x=y.bvh", "p;q.bvh", "sub dir/r$s.bvh", "t:u.bvh"]
+    for rel in good + bad:
+        (src / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(SAMPLES / "march.bvh", src / rel)
+    dst = tmp_path / "out"
+    m = _make_in(work, "-j2", "-k", "batch", f"IN={src}", f"OUT={dst}")
+    assert m.returncode != 0, m.stdout + m.stderr
+    assert "recipe commences" not in m.stderr and "No rule" not in m.stderr, m.stderr
+    for rel in good:
+        assert (dst / rel).read_bytes().startswith(b"HIERARCHY"), rel
+    for rel in bad:
+        assert not (dst / rel).exists()
+        assert f"  FAILED {rel}: {UNSUPPORTED}" in m.stdout.splitlines(), m.stdout
+    assert f"make batch: 6 files, {len(bad)} failed" in m.stdout
+    assert list(work.iterdir()) == []
+
+
+@needs_make
+def test_make_batch_counts_inputs_left_unbuilt_as_failed(tmp_path):
+    """Without -k make stops at the first failure: the files after it have
+    no output and are failures too, not silently left out of the count."""
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "a_broken.bvh").write_bytes((SAMPLES / "march.bvh").read_bytes()[:5000])
+    for rel in ("b.bvh", "c.bvh"):
+        shutil.copy(SAMPLES / "march.bvh", src / rel)
+    dst = tmp_path / "out"
+    m = _make_in(tmp_path, "batch", f"IN={src}", f"OUT={dst}")
+    assert m.returncode != 0
+    lines = m.stdout.splitlines()
+    assert any(line.startswith("  FAILED a_broken.bvh: staggered: ") for line in lines), m.stdout
+    assert "  FAILED b.bvh: not built" in lines and "  FAILED c.bvh: not built" in lines, m.stdout
+    assert "make batch: 3 files, 3 failed" in m.stdout
+    assert not (dst / "b.bvh").exists()

@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import variables
+from staggered_cli import quat, variables
 from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import parse_bvh, read_bvh
 from staggered_cli.io.document import document_bytes, from_parts, parse_document, to_parts
+from staggered_cli.ops import edit_pose as E
+from staggered_cli.representation import ROTATION, TRANSLATION
 
-from .conftest import SAMPLES, mocap, one_line_error
+from .conftest import SAMPLES, cli_document, mocap, one_line_error
 
 
 def run(args, input=None):
@@ -174,3 +177,57 @@ def test_corrupted_document_fails_cleanly(doc_file, tmp_path):
     r = run(["bake", str(bad), "-o", str(tmp_path / "o.bvh")])
     one_line_error(r, 1, str(bad))
     assert not (tmp_path / "o.bvh").exists()
+
+
+def test_exaggerate_through_the_cli(tmp_path):
+    m = read_bvh(SAMPLES / "march.bvh")
+    doc = variables.from_motion(m, np.arange(0.0, 4.0, 0.3))
+    manifest, arrays = to_parts(doc)
+    path = tmp_path / "march.stag"
+    path.write_bytes(document_bytes(manifest, arrays, "npz"))
+    r = run(["edit-pose", str(path), "--pose", "4", "--exaggerate", "2", "--format", "json"])
+    assert r.exit_code == 0, r.stderr
+    ex = load(r.stdout_bytes)
+    for tr, a, b in zip(doc.tracks, E.pose_values(doc, 4, "true"), E.pose_values(ex, 4, "true"), strict=True):
+        if tr.kind == TRANSLATION:
+            np.testing.assert_allclose(b, a, atol=1e-12)
+        else:
+            assert tr.kind == ROTATION and np.degrees(quat.angle_between(a, b)).max() > 0.5
+    root = m.skeleton.names[0]
+    r = run(["edit-pose", str(path), "--pose", "4", "--exaggerate", "2", "--joints", root, "--format", "json"])
+    assert r.exit_code == 0, r.stderr
+    named = load(r.stdout_bytes)
+    tr = next(tr for tr in doc.tracks if tr.kind == TRANSLATION)
+    ti = doc.tracks.index(tr)
+    i = tr.names.index(f"{root}.position")
+    assert np.abs(E.pose_values(named, 4, "true")[ti][i] - E.pose_values(doc, 4, "true")[ti][i]).max() > 1e-3
+
+
+def test_messages_print_times_to_the_frames_precision():
+    doc = cli_document("cmu_02_01_walk.bvh", ["cull", "--keep", "6"])  # 120 Hz: three decimals
+    r = run(["edit-pose", "-", "--pose", "2", "--shift", "0.9", "-o", "-"], input=doc)
+    assert r.exit_code == 2
+    msg = r.stderr.strip()
+    assert re.search(r"neighbours \(\d+\.\d{3} s and \d+\.\d{3} s\), got \d+\.\d{3} s$", msg), msg
+    assert not re.search(r"\d\.\d{5,}", msg), msg  # no raw float such as 0.9332980000000001
+    doc30 = cli_document("bandai2_run_normal_001.bvh")  # 30 Hz: two decimals
+    r = run(["cull", "-", "--add-time", "9.123456789", "-o", "-"], input=doc30)
+    one_line_error(r, 2, "(0 to 2.23 s), got 9.12346")
+
+
+def test_constraints_remove_twice_and_subtree_without_joints_are_refused():
+    doc = cli_document("bandai2_run_normal_001.bvh")
+    listed = run(["constraints", "-"], input=doc).stdout.splitlines()
+    n = len(listed) - 1
+    assert n >= 3
+    one_line_error(run(["constraints", "-", "--remove", "1", "--remove", "1"], input=doc), 2, "--remove 1")
+    alias = str(1 - n)  # the same constraint counted from the end
+    r = run(["constraints", "-", "--remove", "1", "--remove", alias], input=doc)
+    one_line_error(r, 2, f"--remove {alias}: constraint 1 is named more than once")
+    r = run(["constraints", "-", "--remove", "1", "--remove", "2", "-o", "-"], input=doc)
+    assert r.exit_code == 0, r.stderr
+    assert len(run(["constraints", "-"], input=r.stdout_bytes).stdout.splitlines()) - 1 == n - 2
+    r = run(["randomize", "-", "--tau", "0.02", "--seed", "1", "--subtree", "-o", "-"], input=doc)
+    one_line_error(r, 2, "--subtree needs --joints")
+    r = run(["edit-pose", "-", "--pose", "2", "--exaggerate", "1.5", "--subtree", "-o", "-"], input=doc)
+    one_line_error(r, 2, "--subtree needs --joints")

@@ -6,6 +6,7 @@ import numpy as np
 
 from staggered_cli.contacts import detect_contacts
 from staggered_cli.io.bvh import read_bvh
+from staggered_cli.ops import cull, timing
 
 from .conftest import SAMPLES
 
@@ -26,3 +27,16 @@ def test_a_lifted_foot_turning_around_is_not_a_contact():
     for foot in ("LeftFoot", "RightFoot"):
         spans = [c.end - c.start for c in found if c.joint == foot and 0 < c.start and c.end < t[-1]]
         assert len(spans) >= 2 and all(0.5 < s < 0.9 for s in spans)
+
+
+def test_detecting_again_on_a_retimed_document_keeps_its_time(cmu_walk):
+    """constraints --detect runs on the captured motion; on a document whose
+    poses were retimed, the new constraints follow the retimed plants."""
+    from staggered_cli.ops.constraints import redetect
+
+    _, doc = cmu_walk
+    few = cull.keep_poses(doc, cull.choose(doc, keep="6", ignore_contacts=True))
+    moved = timing.retime_pose(few, 2, few.pose_t[2] + 0.15)
+    again = redetect(moved, None, None, None)
+    key = lambda c: (c.joint, round(c.start, 6), round(c.end, 6))  # noqa: E731
+    assert sorted(map(key, again)) == sorted(map(key, moved.constraints))

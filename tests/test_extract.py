@@ -5,7 +5,6 @@ consistency, and the signal operators on curves whose answers are known."""
 
 from __future__ import annotations
 
-import functools
 import json
 from dataclasses import replace
 
@@ -18,12 +17,11 @@ from staggered_cli import contacts as C
 from staggered_cli import sampling
 from staggered_cli import signals as S
 from staggered_cli.errors import UsageError
-from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.document import document_bytes, to_parts
 from staggered_cli.motion import BvhMotion, channels_from_local
 from staggered_cli.ops.extract import extract, refinement_frames
 
-from .conftest import BVH_FILES, C3D_FILES, mocap
+from .conftest import BVH_FILES, C3D_FILES, cli_extract, dev_document, dev_motion, mocap
 
 #: Clips whose contacts are checked against the reference (walk, run, jump).
 CONTACT_CLIPS = [
@@ -39,20 +37,13 @@ CONTACT_CLIPS = [
 TPOSE = ("cmu_01_01_forward_jumps.bvh", "cmu_115_06_pick_up_box.bvh")
 
 
-@functools.cache
 def _motion(name: str):
-    path = mocap(name)
-    if name.endswith(".c3d"):
-        from staggered_cli.io.c3d import read_c3d
-
-        return read_c3d(path)
-    return read_bvh(path)
+    return dev_motion(name)  # read once per session (conftest)
 
 
-@functools.cache
 def _extracted(name: str):
-    """Each file is extracted once for the whole module."""
-    return extract(_motion(name), source_name=name)
+    """Each file is extracted once for the whole session (conftest)."""
+    return dev_document(name)
 
 
 def _rate(doc) -> float:
@@ -434,6 +425,17 @@ def test_cli_extract_writes_a_document(tmp_path):
     res = CliRunner().invoke(cli, ["extract", src, "--filter-width", "nan", "-o", str(tmp_path / "z.stag")])
     assert res.exit_code == 2
     assert not (tmp_path / "x.stag").exists() and not (tmp_path / "y.stag").exists()
+
+
+@pytest.mark.parametrize("name", ["bandai2_run_normal_001.bvh", "c3dorg_sample01_Eb015pi_walk.c3d"])
+def test_cli_extract_writes_the_library_document_byte_for_byte(name):
+    """The command is the library's extract and nothing else: the tests that
+    share one extraction per clip (conftest.cli_extract) rely on it."""
+    from staggered_cli.cli.main import cli
+
+    r = CliRunner().invoke(cli, ["extract", str(mocap(name)), "-o", "-"])
+    assert r.exit_code == 0, r.stderr
+    assert r.stdout_bytes == cli_extract(name)
 
 
 def test_cli_defaults_are_the_library_defaults():

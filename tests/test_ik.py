@@ -19,6 +19,8 @@ from staggered_cli.document import Constraint
 from staggered_cli.errors import UsageError
 from staggered_cli.ik import blend_weight, ik_layer, two_bone_chain
 from staggered_cli.io.bvh import read_bvh
+from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.ops.bake import bake
 from staggered_cli.skeleton import forward_kinematics
 
 from .conftest import mocap
@@ -390,7 +392,7 @@ def test_bad_input_is_refused():
 @pytest.fixture(scope="module")
 def run_doc(tmp_path_factory):
     from staggered_cli import variables as V
-    from staggered_cli.io.document import document_bytes, to_parts
+    from staggered_cli.io.document import document_bytes
 
     c = load("bandai2_run_normal_001.bvh")
     m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
@@ -459,3 +461,52 @@ def test_constraints_command_refuses_bad_edits(run_doc, args, needle):
     result = cli_run("constraints", run_doc[0], *args)
     assert result.exit_code == 2, result.stderr
     assert needle in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_constraint_added_by_hand_pins_its_joint(cmu_walk, tmp_path):
+    """constraints --add means 'planted here': bake holds the joint at one
+    place even though no edit disturbed it (detected contacts follow the
+    capture instead)."""
+    from click.testing import CliRunner
+
+    from staggered_cli.cli.main import cli
+    from staggered_cli.io.document import document_bytes, parse_document
+
+    m, doc = cmu_walk
+    c = next(x for x in doc.constraints if x.joint == "LeftFoot" and x.end - x.start > 0.3)
+    # the flat-foot middle of the stance: at heel strike and heel-off the
+    # ankle's mean position is beyond the leg's reach
+    quarter = 0.25 * (c.end - c.start)
+    middle = (round(c.start + quarter, 4), round(c.end - quarter, 4))
+    path = tmp_path / "w.stag"
+    path.write_bytes(document_bytes(*to_parts(doc), "npz"))
+    index = doc.constraints.index(c)
+    out = tmp_path / "pinned.stag"
+    r = CliRunner().invoke(
+        cli,
+        [
+            "constraints",
+            str(path),
+            "--remove",
+            str(index),
+            "--add",
+            f"LeftFoot@{middle[0]}:{middle[1]}",
+            "-o",
+            str(out),
+        ],
+    )
+    assert r.exit_code == 0, r.stderr
+    pinned = from_parts(*parse_document(out.read_bytes(), str(out)))
+    assert any(x.pin for x in pinned.constraints)
+    baked = bake(pinned)
+    from staggered_cli.motion import BvhMotion
+
+    j = m.skeleton.index("LeftFoot")
+    t = doc.frame_times
+    inside = (t >= middle[0]) & (t <= middle[1])
+    size = m.figure_height()
+    before = m.world()[1][inside, j]
+    after = BvhMotion(m.skeleton, baked.channels, m.frame_time).world()[1][inside, j]
+    spread = lambda p: np.linalg.norm(p - p.mean(axis=0), axis=1).max() / size  # noqa: E731
+    assert spread(before) > 0.005  # the captured ankle moves
+    assert spread(after) < 0.1 * spread(before)

@@ -4,15 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from staggered_cli import quat
+from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
 from staggered_cli.motion import channels_from_local
 
-from .conftest import BVH_FILES, mocap
+from .conftest import BVH_FILES, cli_document, mocap, one_line_error
 
 pytestmark = pytest.mark.skipif(not BVH_FILES, reason="../shared/mocap is missing")
+
+
+def run(args, input=None):
+    return CliRunner().invoke(cli, args, input=input)
 
 
 @pytest.fixture(scope="module", params=BVH_FILES)
@@ -183,3 +189,69 @@ def test_crlf_tabs_and_bom_parse_the_same():
     b = parse_bvh(b"\xef\xbb\xbf" + text.replace(b"\r\n", b"\n").replace(b"  ", b"\t"))
     np.testing.assert_array_equal(a.channels, b.channels)
     assert a.skeleton.names == b.skeleton.names
+
+
+@pytest.mark.parametrize("name", BVH_FILES)
+def test_unedited_round_trip_is_byte_identical_on_every_dev_bvh(name):
+    src = mocap(name).read_bytes()
+    r = run(["bake", "-", "-o", "-"], input=cli_document(name, ["cull", "--keep", "30%"]))
+    assert r.exit_code == 0, r.stderr
+    assert r.stdout_bytes == src  # header numbers, CRLF, tabs, column spacing and every token as written
+
+
+def _motion_tokens(data: bytes) -> tuple[list[bytes], list[bytes]]:
+    at = data.index(b"MOTION")
+    rest = data[at:].split(None, 6)  # MOTION Frames: N Frame Time: t
+    return data[:at].split(), rest[6].split()
+
+
+def test_an_edit_rewrites_only_the_numbers_it_changes():
+    name = "cmu3dsmax_131_02_start_walk_stop.bvh"  # mixed CRLF/LF, numbers like -46.182 among %.4f ones
+    src = mocap(name).read_bytes()
+    m = parse_bvh(src)
+    sk = m.skeleton
+    doc = cli_document(
+        name, ["cull", "--keep", "30%"], ["succession", "--joint", "@left-arm", "--offset", "0.03", "--clamp"]
+    )
+    out = run(["bake", "-", "-o", "-"], input=doc).stdout_bytes
+    assert out[: src.index(b"MOTION")] == src[: src.index(b"MOTION")]
+    assert out.count(b"\r\n") == src.count(b"\r\n") and out.count(b"\n") == src.count(b"\n")
+    head_a, a = _motion_tokens(src)
+    head_b, b = _motion_tokens(out)
+    C = m.channels.shape[1]
+    changed = (np.array(a) != np.array(b)).reshape(-1, C)
+    arm = np.zeros(C, dtype=bool)
+    for j in sk.subtree(sk.index("@left-arm")):
+        s, e = m.channel_slices()[j]
+        arm[s:e] = True
+    assert changed[:, arm].sum() > 1000 and not changed[:, ~arm].any()
+
+
+def test_a_resampled_bake_keeps_the_header_as_written():
+    src = mocap("games105_idle.bvh").read_bytes()  # CRLF, offsets like 0.100000
+    out = run(["bake", "-", "--fps", "30", "-o", "-"], input=cli_document("games105_idle.bvh")).stdout_bytes
+    at = src.index(b"MOTION")
+    assert out[:at] == src[:at]
+    lines = out[at:].split(b"\r\n")
+    assert lines[1:3] == [b"Frames: 100", b"Frame Time:   0.0333333"]
+    assert b"\n" not in out.replace(b"\r\n", b"")
+    assert parse_bvh(out).channels.shape == (100, 63)
+
+
+def test_a_document_whose_source_text_is_not_the_source_is_refused():
+    from staggered_cli.io.document import document_bytes, parse_document
+
+    manifest, arrays = parse_document(cli_document("bandai2_run_normal_001.bvh"), "doc")
+    text = arrays["source.bvh"].copy()
+    text[text.tobytes().index(b"Hips")] = ord("X")  # a header that no longer matches
+    arrays["source.bvh"] = text
+    r = run(["bake", "-", "-o", "-"], input=document_bytes(manifest, arrays, "npz"))
+    one_line_error(r, 1, "<stdin>", "source.bvh is not the source file")
+    del arrays["source.bvh"]  # a document without the text still bakes, in the source's number format
+    r = run(["bake", "-", "-o", "-"], input=document_bytes(manifest, arrays, "npz"))
+    assert r.exit_code == 0, r.stderr
+    np.testing.assert_allclose(
+        parse_bvh(r.stdout_bytes).channels,
+        parse_bvh(mocap("bandai2_run_normal_001.bvh").read_bytes()).channels,
+        atol=1e-6,
+    )

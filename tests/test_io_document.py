@@ -8,18 +8,22 @@ import io
 import json
 import os
 import pickle
+import random
 import struct
 import time
 import tracemalloc
 import warnings
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
 from staggered_cli.io import document
 from staggered_cli.io.document import (
@@ -30,6 +34,8 @@ from staggered_cli.io.document import (
     is_document,
     parse_document,
 )
+
+from .conftest import SAMPLES, one_line_error
 
 NAME = "walk.stag"
 
@@ -435,3 +441,175 @@ def test_unusual_zip_features_are_refused():
     refused(buf.getvalue(), "unsupported compression")
     refused(b"", "empty file")
     refused(b"HIERARCHY", "not a staggered-poses document")
+
+
+def _run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def _extract(src: Path, out: Path) -> Path:
+    result = _run("extract", src, "-o", out)
+    assert result.exit_code == 0, result.stderr
+    return out
+
+
+def _info_is_clean(path: Path) -> str:
+    """``info`` on a possibly damaged document: exit 0, or one line naming
+    the file with exit 1; never an internal error.  The stderr line."""
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    assert "internal error" not in result.stderr and "Traceback" not in result.stderr, result.stderr
+    if result.exit_code == 0:
+        return ""
+    one_line_error(result, 1, str(path))
+    return result.stderr
+
+
+@pytest.fixture(scope="module")
+def march_npz(tmp_path_factory) -> bytes:
+    path = tmp_path_factory.mktemp("doc") / "march.stag"
+    return _extract(SAMPLES / "march.bvh", path).read_bytes()
+
+
+def _zip_structure(data: bytes) -> list[range]:
+    """Byte ranges of the zip's local headers, central directory and end record."""
+    import io
+
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        infos = zf.infolist()
+        cd_start = zf.start_dir
+    ranges = [range(i.header_offset, i.header_offset + 30 + len(i.filename)) for i in infos]
+    ranges.append(range(cd_start, len(data)))
+    return ranges
+
+
+def test_byte_flips_in_an_npz_document_never_crash(march_npz, tmp_path):
+    data = march_npz
+    structure = _zip_structure(data)
+    rng = random.Random(20240611)
+    path = tmp_path / "flipped.stag"
+    refused = 0
+    for _ in range(300):
+        b = bytearray(data)
+        for _ in range(rng.randint(1, 4)):
+            where = rng.random()
+            if where < 0.4:
+                pos = rng.choice(structure[-1])  # the central directory and end record
+            elif where < 0.8:
+                pos = rng.choice(rng.choice(structure[:-1]))  # a local header
+            else:
+                pos = rng.randrange(len(b))
+            b[pos] ^= 1 << rng.randrange(8) if rng.random() < 0.5 else rng.randrange(1, 256)
+        path.write_bytes(bytes(b))
+        refused += bool(_info_is_clean(path))
+    assert refused > 200
+
+
+def _central_entries(data: bytes) -> list[int]:
+    start = _zip_structure(data)[-1].start
+    return [i for i in range(start, len(data) - 4) if data[i : i + 4] == b"PK\x01\x02"]
+
+
+@pytest.mark.parametrize("damage", ["version", "negative_seek", "flag_bit"])
+def test_zip_structures_zipfile_does_not_handle_are_refused(march_npz, tmp_path, damage):
+    b = bytearray(march_npz)
+    entries = _central_entries(march_npz)
+    if damage == "version":  # NotImplementedError: zip file version 10.6
+        struct.pack_into("<H", b, entries[0] + 6, 106)
+    elif damage == "negative_seek":  # ValueError: negative seek value
+        eocd = march_npz.rindex(b"PK\x05\x06")
+        (offset_cd,) = struct.unpack_from("<I", b, eocd + 16)
+        struct.pack_into("<I", b, eocd + 16, offset_cd + 1000)
+    else:  # NotImplementedError: strong encryption (flag bit 6)
+        (flags,) = struct.unpack_from("<H", b, entries[-1] + 8)
+        struct.pack_into("<H", b, entries[-1] + 8, flags | 0x40)
+    path = tmp_path / "damaged.stag"
+    path.write_bytes(bytes(b))
+    assert "corrupt NPZ document" in _info_is_clean(path)
+
+
+@pytest.fixture(scope="module")
+def march_json(tmp_path_factory) -> dict:
+    path = tmp_path_factory.mktemp("doc") / "march.json"
+    return json.loads(_extract(SAMPLES / "march.bvh", path).read_text())
+
+
+def _set(keys):
+    def change(doc, value):
+        target = doc
+        for k in keys[:-1]:
+            target = target[k]
+        target[keys[-1]] = value
+
+    return change
+
+
+def _signal(name, value=None, shape=None):
+    def change(doc, _):
+        entry = doc["arrays"][f"signal.{name}"]
+        if value is not None:
+            entry["values"][3] = value
+        if shape is not None:
+            entry["shape"] = shape
+            entry["values"] = [0.5] * int(np.prod(shape))
+
+    return change
+
+
+BIG = 10**30
+
+
+@pytest.mark.parametrize(
+    "change, value, needle",
+    [
+        (_set(["manifest", "bvh", "parents", 1]), 1e308, "bvh parents[1]"),
+        (_set(["manifest", "bvh", "parents", 1]), BIG, "bvh parents[1]"),
+        (_set(["manifest", "bvh", "parents", 2]), 0.5, "bvh parents[2]"),  # was truncated to 0
+        (_set(["manifest", "bvh", "parents", 2]), 1.0, "bvh parents[2]"),
+        (_set(["manifest", "bvh", "parents", 1]), True, "bvh parents[1]"),
+        (_set(["manifest", "bvh", "end_parents", 0]), 1e308, "bvh end_parents[0]"),
+        (_set(["manifest", "bvh", "end_parents", 0]), BIG, "bvh end_parents[0]"),
+        (_set(["manifest", "bvh", "end_parents", 0]), 2.5, "bvh end_parents[0]"),
+        (_set(["manifest", "tracks", 1, "targets", 0]), 1e308, "track 1 targets[0]"),
+        (_set(["manifest", "tracks", 1, "targets", 0]), BIG, "track 1 targets[0]"),
+        (_set(["manifest", "tracks", 1, "targets", 1]), 1.5, "track 1 targets[1]"),
+        (_set(["manifest", "tracks", 0, "targets", 0]), -(BIG), "track 0 targets[0]"),
+        (_set(["manifest", "frames"]), 121.5, "frames"),
+        (_set(["manifest", "frames"]), BIG, "frames"),
+        (_set(["manifest", "constraints"]), [{"joint": "Hips", "start": 10**400, "end": 0}], "OverflowError"),
+        (_signal("P", value="Infinity"), None, "signal.P"),
+        (_signal("P", value="NaN"), None, "signal.P"),
+        (_signal("p", value="-Infinity"), None, "signal.p"),
+        (_signal("P", shape=[120]), None, "signal.P"),
+        (_signal("p", shape=[18, 121]), None, "signal.p"),
+        (_signal("weights", shape=[17]), None, "signal.weights"),
+        (_signal("contact", shape=[121, 1]), None, "signal.contact"),
+    ],
+)
+def test_crafted_manifests_are_refused_in_one_line(march_json, tmp_path, change, value, needle):
+    doc = json.loads(json.dumps(march_json))
+    change(doc, value)
+    path = tmp_path / "crafted.json"
+    path.write_text(json.dumps(doc))
+    for args in (["info", path], ["bake", path, "-o", tmp_path / "out.bvh"]):
+        result = CliRunner().invoke(cli, [str(a) for a in args])
+        one_line_error(result, 1, str(path), needle)
+        assert "internal error" not in result.stderr
+    assert not (tmp_path / "out.bvh").exists()
+
+
+def test_an_infinite_signal_is_refused_before_plotting(march_json, tmp_path):
+    doc = json.loads(json.dumps(march_json))
+    doc["arrays"]["signal.P"]["values"][10] = "Infinity"
+    path = tmp_path / "inf.json"
+    path.write_text(json.dumps(doc))
+    out = tmp_path / "signals.png"
+    result = CliRunner().invoke(cli, ["plot", str(path), "--kind", "signals", "-o", str(out)])
+    one_line_error(result, 1, str(path), "signal.P", "not finite")
+    assert not out.exists()
+
+
+def test_the_untouched_json_document_still_reads(march_json, tmp_path):
+    path = tmp_path / "same.json"
+    path.write_text(json.dumps(march_json))
+    assert _run("info", path).exit_code == 0

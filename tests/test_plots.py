@@ -20,9 +20,11 @@ from staggered_cli.cli.main import cli
 from staggered_cli.cli.options import load_input
 from staggered_cli.cli.preview import join_at
 from staggered_cli.errors import UsageError
+from staggered_cli.io.bvh import parse_bvh
 from staggered_cli.io.document import document_bytes, to_parts
+from staggered_cli.plots import gif_durations
 
-from .conftest import BVH_FILES, C3D_FILES, SAMPLES, mocap, one_line_error
+from .conftest import BVH_FILES, C3D_FILES, SAMPLES, dev_document, mocap, one_line_error
 
 ALL_FILES = BVH_FILES + C3D_FILES
 TEST_DPI = 60  # small pictures keep the tests quick
@@ -41,10 +43,10 @@ def _extract():
 
 def make_document(name: str) -> D.Document:
     """The document of a mocap file: extracted, or poses every 0.25 s."""
-    motion = load_input(str(mocap(name)))
     extract = _extract()
     if extract is not None:
-        return extract(motion, source_name=name)
+        return dev_document(name)  # extracted once per session (conftest)
+    motion = load_input(str(mocap(name)))
     return V.from_motion(motion, np.arange(0.0, (motion.n_frames - 1) * motion.frame_time, 0.25), source_name=name)
 
 
@@ -380,3 +382,44 @@ def test_commands_import_no_matplotlib_or_numpy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def _gif_frames(data: bytes) -> list[int]:
+    im = Image.open(io.BytesIO(data))
+    out = []
+    for i in range(im.n_frames):
+        im.seek(i)
+        out.append(int(im.info["duration"]))
+    return out
+
+
+def test_gif_durations_spread_the_centisecond_rounding():
+    # the issue's case: 133 frames of 8/120 s each (8.87 s) played in 7.98 s
+    d = gif_durations(np.full(133, 8 / 120))
+    assert all(x % 10 == 0 for x in d) and set(d) == {60, 70}
+    assert sum(d) / 1000 == pytest.approx(133 * 8 / 120, rel=1e-3)
+
+
+def test_gif_preview_lasts_as_long_as_the_clip():
+    path = mocap("bandai2_run_normal_001.bvh")
+    m = parse_bvh(path.read_bytes())
+    r = run(["preview", str(path), "--dpi", "20", "-o", "-", "--format", "gif"])
+    assert r.exit_code == 0, r.stderr
+    durations = _gif_frames(r.stdout_bytes)
+    clip = m.n_frames * m.frame_time  # 2.27 s, as `info` reports it
+    assert len(durations) == 34  # every second frame of 68: about 15 a second
+    assert abs(sum(durations) / 1000 - clip) <= 0.01 * clip, (sum(durations), clip)  # was 2.04 s (10 % fast)
+
+
+def test_preview_compare_warns_about_another_skeleton():
+    run_, walk, idle = (
+        str(mocap(n)) for n in ("bandai2_run_normal_001.bvh", "bandai1_walk_normal_001.bvh", "games105_idle.bvh")
+    )
+    r = run(["preview", run_, "--compare", walk, "--dpi", "20", "-o", "-"])
+    assert r.exit_code == 0 and r.stderr == "", r.stderr  # the same skeleton: no word
+    r = run(["preview", run_, "--compare", idle, "--dpi", "20", "-o", "-"])
+    assert r.exit_code == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("staggered: WARNING: --compare games105_idle.bvh"), r.stderr
+    assert "20 joints against 22, no joint joint_Root" in lines[0]
+    assert r.stdout_bytes.startswith(b"\x89PNG")

@@ -16,7 +16,7 @@ from staggered_cli.motion import BvhMotion, local_rotations_from_channels, rotat
 from staggered_cli.ops import pose_file as P
 from staggered_cli.ops.bake import bake
 
-from .conftest import mocap, one_line_error
+from .conftest import cli_document, dev_motion, mocap, one_line_error
 from .test_ops import _lag
 
 CLIPS = ["bandai1_walk_normal_001.bvh", "cmu_02_01_walk.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh"]
@@ -32,12 +32,9 @@ def load(data: bytes):
 
 @pytest.fixture(scope="module", params=CLIPS)
 def extracted(request, tmp_path_factory):
-    path = mocap(request.param)
-    d = tmp_path_factory.mktemp("dcc")
-    doc_path = d / "doc.stag"
-    r = run(["extract", path, "-o", doc_path])
-    assert r.exit_code == 0, r.stderr
-    return read_bvh(path), doc_path, load(doc_path.read_bytes())
+    doc_path = tmp_path_factory.mktemp("dcc") / "doc.stag"
+    doc_path.write_bytes(cli_document(request.param))  # `staggered extract`, once per session (conftest)
+    return dev_motion(request.param), doc_path, load(doc_path.read_bytes())
 
 
 def _token(x: str):

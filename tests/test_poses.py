@@ -10,27 +10,24 @@ import logging
 import numpy as np
 import pytest
 
-from staggered_cli.io.bvh import read_bvh
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops.extract import contact_clusters, extract
 from staggered_cli.sampling import local_pose
 from staggered_cli.skeleton import forward_kinematics
 from staggered_cli.variables import from_motion
 
-from .conftest import BVH_FILES, mocap
+from .conftest import BVH_FILES, dev_document, dev_motion
 
 TPOSE = ("cmu_01_01_forward_jumps.bvh", "cmu_115_06_pick_up_box.bvh")
 WALKS = ("cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh")
 
 
-@functools.cache
 def _motion(name: str):
-    return read_bvh(mocap(name))
+    return dev_motion(name)  # once per session (conftest)
 
 
-@functools.cache
 def _doc(name: str):
-    return extract(_motion(name), source_name=name)
+    return dev_document(name)
 
 
 @functools.cache

@@ -14,7 +14,7 @@ from staggered_cli.ops.bake import bake
 from staggered_cli.ops.extract import extract
 from staggered_cli.skeleton import body_joints, forward_kinematics
 
-from .conftest import mocap
+from .conftest import dev_document, dev_motion, mocap
 from .test_ops import _lag
 
 WALKS = ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu_01_01_forward_jumps.bvh"]
@@ -22,8 +22,7 @@ WALKS = ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu_01_01_forward
 
 @pytest.fixture(scope="module", params=WALKS)
 def extracted(request):
-    m = read_bvh(mocap(request.param))
-    return m, extract(m, source_name=request.param)
+    return dev_motion(request.param), dev_document(request.param)  # once per session (conftest)
 
 
 def _positions(motion):

@@ -1,0 +1,47 @@
+"""Timing edits (succession, randomize, retime): what they move and what they
+leave, and the contacts that move with them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.ops import timing
+from staggered_cli.ops.bake import bake
+
+
+def test_clamp_stops_short_and_moves_only_the_chosen_poses(cmu_walk):
+    _, doc = cmu_walk
+    out = timing.succession(doc, -0.02, 1.5, joint="LeftShoulder", clamp=True)
+    assert out.n_poses == doc.n_poses
+    mask = timing.select_poses(doc, [3])
+    one = timing.randomize(doc, 0.2, 0, poses=mask, clamp=True)
+    changed = np.any(one.refinements() != doc.refinements(), axis=1)
+    assert not changed[np.arange(doc.n_poses) != 3].any()
+
+
+def test_contacts_move_with_a_retimed_pose(cmu_walk):
+    _, doc = cmu_walk
+    c = doc.constraints[len(doc.constraints) // 2]
+    k = int(np.argmin(np.abs(doc.pose_t - c.start)))
+    k = min(max(k, 1), doc.n_poses - 2)
+    dt = 0.3 * (doc.pose_t[k + 1] - doc.pose_t[k])
+    moved = timing.retime_pose(doc, k, doc.pose_t[k] + dt)
+    old = {(x.joint, x.start) for x in doc.constraints}
+    shifted = [x for x in moved.constraints if (x.joint, x.start) not in old]
+    assert shifted and all(x.source_span != (x.start, x.end) for x in shifted)
+    manifest, arrays = to_parts(moved)
+    assert from_parts(manifest, arrays).constraints == moved.constraints
+    # the unedited parts keep their constraints and the bake stays finite
+    assert np.all(np.isfinite(bake(moved).channels))
+
+
+def test_variables_that_never_move_are_not_retimed(bandai_run):
+    """Bandai has constant position channels on every joint: retiming them
+    changed nothing visible and could only get the edit refused."""
+    _, doc = bandai_run
+    out = timing.succession(doc, 0.02, 1.0, joint="Shoulder_L")
+    names = doc.variable_names
+    changed = np.any(out.refinements() != doc.refinements(), axis=0)
+    assert not any(changed[i] for i, n in enumerate(names) if n.endswith(".position"))
+    assert changed[names.index("LowerArm_L")]
