@@ -19,18 +19,15 @@ from click.testing import CliRunner
 
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
-from staggered_cli.io.bvh import read_bvh
-from staggered_cli.io.c3d import read_c3d
 from staggered_cli.io.document import DOCUMENT_VERSION, document_bytes, from_parts, parse_document, to_parts
 from staggered_cli.ops import layers
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.cull import choose, keep_poses
 from staggered_cli.ops.edit_pose import edit_pose, joint_mask
-from staggered_cli.ops.extract import extract
 from staggered_cli.ops.timing import succession
 from staggered_cli.representation import evaluate, restructure
 
-from .conftest import mocap, one_line_error
+from .conftest import dev_document, one_line_error
 
 BVH = "cmu_02_01_walk.bvh"
 C3D = "c3dorg_sample01_Eb015pi_walk.c3d"
@@ -42,14 +39,12 @@ def run(args, input=None):
 
 @pytest.fixture(scope="module")
 def walk():
-    path = mocap(BVH)
-    return extract(read_bvh(path), source_name=path.name, source_bytes=path.read_bytes())
+    return dev_document(BVH)  # extracted once per session (conftest), read-only
 
 
 @pytest.fixture(scope="module")
 def markers():
-    path = mocap(C3D)
-    return extract(read_c3d(path), source_name=path.name, source_bytes=path.read_bytes())
+    return dev_document(C3D)
 
 
 def world(doc) -> np.ndarray:
