@@ -11,7 +11,7 @@ One line per goal: the measured value, the goal, PASS or FAIL.
 * linear: extract, and bake, of cmu_01_01's MOTION block repeated 1, 8 and
   32 times (generated in a temporary folder), timed inside a child process
   after a warm-up on the bundled sample (goal: 32x the frames in <= 34x the
-  time of 1x);
+  CPU time of 1x; the wall-clock ratio is printed beside it);
 * memory: the peak resident memory (``ru_maxrss``) of each of those
   children against the raw float64 channel bytes (frames x channels x 8)
   (goal: <= 6x raw + 150 MB);
@@ -140,10 +140,10 @@ def child(stage: str, src: str, dst: str) -> dict:
         if stage == "bake":
             run(["-q", "bake", doc, "-o", os.path.join(tmp, "warm.bvh"), "--force"])
     base = _peak_mb()
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     run(["-q", stage, src, "-o", dst, "--force"])
-    seconds = time.perf_counter() - t
-    return {"seconds": seconds, "peak_mb": _peak_mb(), "base_mb": base}
+    seconds, cpu = time.perf_counter() - t, time.process_time() - cpu
+    return {"seconds": seconds, "cpu": cpu, "peak_mb": _peak_mb(), "base_mb": base}
 
 
 def _child(stage: str, src: Path, dst: Path) -> dict:
@@ -199,24 +199,29 @@ def scaling(tmp: Path, factors: list[int], repeats: int) -> list[bool]:
         doc, out = tmp / f"clip_x{k}.stag", tmp / f"clip_x{k}_baked.bvh"
         for stage, src, dst in (("extract", clip, doc), ("bake", doc, out)):
             runs = [_child(stage, src, dst) for _ in range(repeats if k <= 8 else 1)]
-            best = min(runs, key=lambda r: r["seconds"])
+            wall = min(r["seconds"] for r in runs)
+            cpu = min(r["cpu"] for r in runs)
             peak = max(r["peak_mb"] for r in runs)
-            rows[stage][k] = {"seconds": best["seconds"], "peak_mb": peak, "raw_mb": raw_mb}
+            base = min(r["base_mb"] for r in runs)
+            rows[stage][k] = {"seconds": wall, "cpu": cpu, "peak_mb": peak, "raw_mb": raw_mb}
             print(
-                f"  {stage:<7} x{k:<3} {frames:7d} frames  {best['seconds']:7.3f} s  peak {peak:6.0f} MB "
-                f"(base {best['base_mb']:.0f})  raw {raw_mb:6.1f} MB"
+                f"  {stage:<7} x{k:<3} {frames:7d} frames  {wall:7.3f} s ({cpu:7.3f} s CPU)  peak {peak:6.0f} MB "
+                f"(base {base:.0f})  raw {raw_mb:6.1f} MB"
             )
         clip.unlink()
         out.unlink(missing_ok=True)
     ok = []
     top = max(factors)
     for stage, by_k in rows.items():
-        ratio = by_k[top]["seconds"] / by_k[1]["seconds"]
+        # on CPU time: on a shared machine the wall clock of one long run
+        # against the best of several short ones measures the load
+        ratio = by_k[top]["cpu"] / by_k[1]["cpu"]
+        wall = by_k[top]["seconds"] / by_k[1]["seconds"]
         goal = LINEAR_GOAL * top / 32
         ok.append(
             _line(
-                f"linear: {stage} {top}x clip / 1x",
-                f"{ratio:.1f}x",
+                f"linear: {stage} {top}x clip / 1x (CPU)",
+                f"{ratio:.1f}x (wall {wall:.1f}x)",
                 f"<= {goal:g}x for {top}x frames",
                 ratio <= goal,
             )
