@@ -22,9 +22,12 @@ One line per goal: the measured value, the goal, PASS or FAIL.
   cmu_01_01 ran 46,500 frames/s in-process on one core: they are scaled by
   that floor measured in this run (on a loaded machine both fall).
 
-    python bench/bench_speed.py [--quick] [--repeats 3]
+    python bench/bench_speed.py [--quick] [--repeats 3] [--hour]
 
 ``--quick``: 1x and 8x only, two copies of the library, fewer repeats.
+``--hour``: also extract and bake cmu_01_01 repeated to one hour at 120 Hz
+(432,064 frames; goal: each under 2 GB).  Not in ``make bench``: it takes
+minutes and, until memory is bounded, several GB.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ WHOLE_GOAL = 4.0
 START_GOAL = 1.5
 LINEAR_GOAL = 34.0  # for 32x the frames
 MEMORY_FACTOR, MEMORY_EXTRA_MB = 6.0, 150.0
+HOUR_FRAMES, HOUR_GOAL_MB = 432_000, 2048.0  # one hour at 120 Hz, in under 2 GB
 BATCH_GOAL, BATCH_STEPS_GOAL = 20_000.0, 10_000.0
 #: The in-process floor (loadtxt + savetxt of cmu_01_01, one core) when the
 #: issue set the batch goals: they are scaled by this run's floor over it.
@@ -299,10 +303,41 @@ def library(tmp: Path, copies: int, repeats: int) -> list[bool]:
     return ok
 
 
+def hour(tmp: Path, frames: int = HOUR_FRAMES) -> list[bool]:
+    """Extract and bake of cmu_01_01 repeated to at least ``frames`` frames
+    (one hour at 120 Hz by default), each in its own child: goal under 2 GB."""
+    from staggered_cli.io.bvh import read_bvh
+
+    base = read_bvh(MOCAP / CLIP).n_frames
+    clip = tmp / "hour.bvh"
+    n = repeat_clip(MOCAP / CLIP, -(-frames // base), clip)
+    doc, out = tmp / "hour.stag", tmp / "hour_baked.bvh"
+    ok = []
+    for stage, src, dst in (("extract", clip, doc), ("bake", doc, out)):
+        try:
+            r = _child(stage, src, dst)
+        except SystemExit as exc:
+            print(f"  {exc}")
+            ok.append(_line(f"hour: {stage} {n} frames", "failed", f"<= {HOUR_GOAL_MB:,.0f} MB", False))
+            break
+        ok.append(
+            _line(
+                f"hour: {stage} {n} frames",
+                f"{r['peak_mb']:,.0f} MB ({r['seconds']:.0f} s)",
+                f"<= {HOUR_GOAL_MB:,.0f} MB",
+                r["peak_mb"] <= HOUR_GOAL_MB,
+            )
+        )
+    return ok
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1x and 8x only, two library copies, fewer repeats")
     parser.add_argument("--repeats", type=int, default=3, help="runs per measurement (the best is kept)")
+    parser.add_argument(
+        "--hour", action="store_true", help="also extract and bake a generated hour at 120 Hz (minutes, GBs)"
+    )
     parser.add_argument("--child", nargs=3, metavar=("STAGE", "SRC", "DST"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
@@ -322,6 +357,8 @@ def main(argv: list[str] | None = None) -> int:
         ok += whole_process(tmp, repeats)
         ok += scaling(tmp, [1, 8] if args.quick else [1, 8, 32], repeats)
         ok += library(tmp, 2 if args.quick else 6, repeats)
+        if args.hour:
+            ok += hour(tmp)
     print(f"{sum(ok)} of {len(ok)} goals met in {time.perf_counter() - start:.0f} s")
     return 0
 
