@@ -231,8 +231,40 @@ def _inside(path: str, folder: str) -> bool:
     return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
 
 
-def plan(in_dir: str, out_dir: str, force: bool = False) -> tuple[list[Job], list[Result]]:
-    """The files to build and the ones already up to date.
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"I/N"`` -> ``(I, N)``: the I-th of N parts, numbered from 1 (``1/8`` to
+    ``8/8``), as ``sbatch --array=1-8`` numbers its tasks.  Raises ``UsageError``."""
+    index, slash, count = (part.strip() for part in text.partition("/"))
+    if not (slash and _digits(index) and _digits(count)):
+        raise UsageError(f"--shard {text[:40]!r}: expected I/N, e.g. 3/8 for the 3rd of 8 parts")
+    index, count = int(index), int(count)
+    if count < 1:
+        raise UsageError(f"--shard {text[:40]!r}: N (the number of parts) must be at least 1")
+    if not 1 <= index <= count:
+        raise UsageError(f"--shard {text[:40]!r}: I must be between 1 and {count} (parts are numbered from 1)")
+    return index, count
+
+
+def _digits(text: str) -> bool:
+    return 0 < len(text) <= 9 and text.isascii() and text.isdigit()
+
+
+def shard_of(rel: str, count: int) -> int:
+    """The part (1 to ``count``) that the input at ``rel`` (relative to the
+    input folder) belongs to: a hash of the path with ``/`` separators, so
+    that every machine splits a library the same way, whatever the order its
+    file system lists the files in, and adding a file moves no other."""
+    import hashlib
+
+    key = rel.replace(os.sep, "/").encode("utf-8", "surrogateescape")
+    return int.from_bytes(hashlib.sha256(key).digest()[:8], "big") % count + 1
+
+
+def plan(
+    in_dir: str, out_dir: str, force: bool = False, shard: tuple[int, int] | None = None
+) -> tuple[list[Job], list[Result]]:
+    """The files to build and the ones already up to date; with ``shard``
+    ``(I, N)`` only those of the I-th of N parts (:func:`shard_of`).
 
     Raises ``UsageError`` when ``in_dir`` is not a folder or ``out_dir`` lies
     inside it (the outputs would become inputs of the next run).
@@ -246,6 +278,8 @@ def plan(in_dir: str, out_dir: str, force: bool = False) -> tuple[list[Job], lis
     todo: list[Job] = []
     skipped: list[Result] = []
     for rel in find_inputs(in_dir):
+        if shard is not None and shard_of(rel, shard[1]) != shard[0]:
+            continue
         job = Job(rel, os.path.join(in_dir, rel), os.path.join(out_dir, rel))
         if force or _stale(job.src, job.dst):
             todo.append(job)

@@ -93,6 +93,12 @@ class BvhMotion:
         """World rotations (T, J, 4) and positions (T, J, 3) (read-only)."""
         return self._world
 
+    def release_world(self) -> None:
+        """Forget the cached world transforms (:meth:`world` computes them
+        again if asked): 56 bytes per joint and frame, that extract frees
+        before its fit."""
+        self.__dict__.pop("_world", None)
+
     @cached_property
     def _figure_height(self) -> float:
         wr, wp = self._world

@@ -33,6 +33,8 @@ from .representation import ROTATION
 KEEP = 0.999
 #: Rough bound on the number of floats one batch of segment costs gathers.
 _BATCH = 1 << 21
+#: The same for :func:`window_costs` (float32 values: 1 MB arrays).
+_WINDOW_BATCH = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -217,7 +219,12 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
     x = proxy.x[frames]  # (G, V, C)
     V, C = x.shape[1], x.shape[2]
     out = np.full((G, width), np.inf)
-    block = max(1, _BATCH // max(width * V * C, 1))
+    # blocks of about 1 MB per array (they stay in cache), and the residuals
+    # computed in place: the same operations in the same order as written
+    # out, r = y - b0 xa - b3 xb, res = r - b1 c1 - b2 c2, without temporaries
+    block = max(1, _WINDOW_BATCH // max(width * V * C, 1))
+    node_f = frames.astype(np.float32)
+    weight = proxy.w.astype(np.float32)
     for w in range(1, min(width, G - 1) + 1):
         n = G - w
         out[:n, w - 1] = 0.0
@@ -226,13 +233,16 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
         for s in range(0, n, block):
             i = np.arange(s, min(s + block, n))
             t = i[:, None] + np.arange(1, w)[None, :]  # (n, w-1) inner nodes
-            fa, fb = frames[i].astype(np.float32), frames[i + w].astype(np.float32)
-            u = (frames[t].astype(np.float32) - fa[:, None]) / (fb - fa)[:, None]
+            fa, fb = node_f[i], node_f[i + w]
+            u = (node_f[t] - fa[:, None]) / (fb - fa)[:, None]
             v = 1.0 - u
             b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
             xa, xb = x[i], x[i + w]  # (n, V, C)
-            y = x[t]  # (n, w-1, V, C)
-            r = y - b0[..., None, None] * xa[:, None] - b3[..., None, None] * xb[:, None]
+            r = x[t]  # (n, w-1, V, C), a copy: becomes the residual
+            tmp = b0[..., None, None] * xa[:, None]
+            r -= tmp
+            np.multiply(b3[..., None, None], xb[:, None], out=tmp)
+            r -= tmp
             g11 = np.sum(b1 * b1, axis=1)[:, None, None]
             g12 = np.sum(b1 * b2, axis=1)[:, None, None]
             g22 = np.sum(b2 * b2, axis=1)[:, None, None]
@@ -245,7 +255,11 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
             else:  # one inner node: the default (straight) controls
                 c1 = xa + (xb - xa) / 3.0
                 c2 = xa + 2.0 * (xb - xa) / 3.0
-            res = r - b1[..., None, None] * c1[:, None] - b2[..., None, None] * c2[:, None]
-            err = np.sqrt(np.sum(res * res, axis=3))  # (n, w-1, V)
-            out[i, w - 1] = np.einsum("ntv,v->n", err, proxy.w.astype(np.float32))
+            np.multiply(b1[..., None, None], c1[:, None], out=tmp)
+            r -= tmp
+            np.multiply(b2[..., None, None], c2[:, None], out=tmp)
+            r -= tmp
+            np.multiply(r, r, out=r)
+            err = np.sqrt(np.sum(r, axis=3))  # (n, w-1, V)
+            out[i, w - 1] = np.einsum("ntv,v->n", err, weight)
     return out

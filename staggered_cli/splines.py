@@ -634,8 +634,11 @@ class _NormalEquations:
         self.count = np.bincount(seg, minlength=n_segments)
         self.first = np.concatenate([[0], np.cumsum(self.count)[:-1]])
 
-    def __call__(self, rows: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Squared error (R,), J^T J (R, 6, 6) and J^T r (R, 6) of segments ``rows`` at ``x`` (R, 6)."""
+    def __call__(
+        self, rows: np.ndarray, x: np.ndarray, jacobian: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Squared error (R,), J^T J (R, 6, 6) and J^T r (R, 6) of segments
+        ``rows`` at ``x`` (R, 6); without ``jacobian``, the error alone (and None, None)."""
         counts = self.count[rows]
         offsets = np.concatenate([[0], np.cumsum(counts)])
         # sample indices of the selected segments, in segment order
@@ -645,14 +648,17 @@ class _NormalEquations:
         group = offsets[:-1] // _CHUNK
         cuts = np.concatenate([[0], np.flatnonzero(np.diff(group)) + 1, [rows.size]])
         cost = np.empty(rows.size)
-        jtj = np.empty((rows.size, 6, 6))
-        jtr = np.empty((rows.size, 6))
+        jtj = np.empty((rows.size, 6, 6)) if jacobian else None
+        jtr = np.empty((rows.size, 6)) if jacobian else None
         for s0, s1 in zip(cuts[:-1], cuts[1:], strict=True):
             lo, hi = offsets[s0], offsets[s1]
             sl = idx[lo:hi]
-            r, j = _residuals_t(self.q0[:, sl], x[local[lo:hi]].T, self.q3[:, sl], self.u[sl], self.values[:, sl], True)
+            xs = x[local[lo:hi]].T
+            r, j = _residuals_t(self.q0[:, sl], xs, self.q3[:, sl], self.u[sl], self.values[:, sl], jacobian)
             starts = offsets[s0:s1] - lo
             cost[s0:s1] = np.add.reduceat(np.sum(r * r, axis=0), starts)
+            if not jacobian:
+                continue
             jj = j[0][:, None] * j[0][None] + j[1][:, None] * j[1][None] + j[2][:, None] * j[2][None]
             jtj[s0:s1] = np.moveaxis(np.add.reduceat(jj, starts, axis=-1), -1, 0)
             jtr[s0:s1] = np.add.reduceat(np.sum(j * r[:, None], axis=0), starts, axis=-1).T
@@ -743,15 +749,16 @@ def fit_rotation_tangents(
     cost = np.zeros(n_segments)
     jtj = np.zeros((n_segments, 6, 6))
     jtr = np.zeros((n_segments, 6))
-    cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
     # a second start: the Bezier fitted linearly in the tangent space at q0,
     # which is close to the optimum for the small turns of most segments;
-    # each segment starts from whichever of the two fits better
+    # each segment starts from whichever of the two fits better (compared on
+    # the error alone: the Jacobian is built once, at the winner)
+    cost[rows] = normal(rows, params[rows], jacobian=False)[0]
     guess = _tangent_space_start(q0, q3, seg[use], u[use], values[use], n_segments)[rows]
-    g_cost, g_jtj, g_jtr = normal(rows, guess)
+    g_cost = normal(rows, guess, jacobian=False)[0]
     take = np.isfinite(g_cost) & (g_cost < cost[rows])
-    params[rows[take]], cost[rows[take]] = guess[take], g_cost[take]
-    jtj[rows[take]], jtr[rows[take]] = g_jtj[take], g_jtr[take]
+    params[rows[take]] = guess[take]
+    cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
     lam = np.full(n_segments, float(damping))
     eye = np.eye(6)
 

@@ -31,10 +31,16 @@ def _progress_wanted() -> bool:
 @click.option(
     "-j", "--jobs", type=click.IntRange(min=1), default=None, metavar="N", help="Worker processes.  [default: CPUs]"
 )
+@click.option(
+    "--shard",
+    metavar="I/N",
+    help="Only the I-th of N parts of the file list, numbered from 1 (as `sbatch --array=1-N`): "
+    "the same parts on every machine, for a job array or several hosts.",
+)
 @click.option("--force", is_flag=True, help="Rebuild every output, even one newer than its input.")
 @click.option("--dry-run", is_flag=True, help="Check the steps and list what would be built; build nothing.")
 @click.pass_context
-def batch(ctx, in_dir, out_dir, steps, jobs, force, dry_run):
+def batch(ctx, in_dir, out_dir, steps, jobs, shard, force, dry_run):
     """Bake every BVH and C3D under IN_DIR into the same tree under OUT_DIR.
 
     Each file goes through `extract FILE | STEP | ... | bake -o OUT_DIR/FILE`
@@ -42,20 +48,26 @@ def batch(ctx, in_dir, out_dir, steps, jobs, force, dry_run):
     input are skipped (unless --force); a failing file leaves no output and
     the others go on.  A summary table goes to standard output; the exit
     code is 1 if any file failed, 2 for bad usage (checked before any file).
+
+    --shard I/N splits the files into N parts by a hash of their path
+    relative to IN_DIR and builds the I-th: N runs (on N machines sharing
+    the folders) build every file exactly once.
     """
     import time
 
     from .. import batch as B
 
     start = time.perf_counter()
+    part = B.parse_shard(shard) if shard is not None else None
     parsed = B.parse_steps(steps, COMMANDS)
-    todo, skipped = B.plan(in_dir, out_dir, force)
+    todo, skipped = B.plan(in_dir, out_dir, force, shard=part)
+    of_shard = f" (shard {part[0]}/{part[1]})" if part else ""
     workers = jobs or os.cpu_count() or 1
     if dry_run:
         results = skipped + [B.Result(job.rel, B.TODO) for job in todo]
         for line in B.summary_table(results):
             click.echo(line)
-        click.echo(f"{len(results)} files: {len(todo)} to build, {len(skipped)} up to date (dry run)")
+        click.echo(f"{len(results)} files{of_shard}: {len(todo)} to build, {len(skipped)} up to date (dry run)")
         return
 
     bar = None
@@ -87,7 +99,7 @@ def batch(ctx, in_dir, out_dir, steps, jobs, force, dry_run):
     n = B.counts(results)
     used = min(workers, max(len(todo), 1))
     click.echo(
-        f"{len(results)} files: {n[B.DONE]} done, {n[B.SKIPPED]} skipped, {n[B.FAILED]} failed "
+        f"{len(results)} files{of_shard}: {n[B.DONE]} done, {n[B.SKIPPED]} skipped, {n[B.FAILED]} failed "
         f"in {time.perf_counter() - start:.1f} s with {used} job{'s' if used > 1 else ''}"
     )
     if n[B.FAILED]:

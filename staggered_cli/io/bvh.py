@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import warnings
 
 import numpy as np
 
@@ -101,8 +102,12 @@ def check_header(head: bytes) -> None:
         raise DataError(f"has no MOTION section in its first {MAX_HEADER_BYTES // 2**20} MiB")
 
 
+_MOTION = re.compile(rb"(^|[\r\n])[ \t]*MOTION[ \t]*(\r\n|\r|\n|$)")
+
+
 def _find_motion(data: bytes) -> int:
-    m = re.search(rb"(^|[\r\n])[ \t]*MOTION[ \t]*(\r\n|\r|\n|$)", data[: MAX_HEADER_BYTES + 64])
+    # endpos: as if the data ended there ('$' matches), without a copy of the head
+    m = _MOTION.search(data, 0, MAX_HEADER_BYTES + 64)
     return -1 if m is None else m.start() + len(m.group(1))
 
 
@@ -240,9 +245,9 @@ _FRAMES = re.compile(rb"^\s*Frames\s*:\s*(\S+)\s*$", re.IGNORECASE)
 _FTIME = re.compile(rb"^\s*Frame\s+Time\s*:\s*(\S+)\s*$", re.IGNORECASE)
 
 
-#: The MOTION block is parsed this many bytes at a time (cut at line ends), so
-#: that parsing needs the file's bytes, the values and one chunk, not copies
-#: of the whole text.
+#: The slow path (ragged lines, errors) splits the MOTION block this many
+#: bytes at a time (cut at line ends), so that it needs the file's bytes, the
+#: values and one chunk, not copies of the whole text.
 _CHUNK_BYTES = 1 << 23
 _NON_ASCII = re.compile(rb"[\x80-\xff]")
 _NON_SPACE = re.compile(rb"\S")
@@ -314,7 +319,7 @@ def _parse_motion(
             f"has {n_frames:,} frames of {n_channels} channels ({n_frames * n_channels:,} values): "
             f"more than the limit of {max_values:,} values (frames x channels): cut it into parts"
         )
-    bad = _NON_ASCII.search(data, body_at)
+    bad = None if _is_ascii(data, body_at) else _NON_ASCII.search(data, body_at)
     if bad is not None:
         raise DataError(f"MOTION data is not text (byte {bad.start() - body_at} of the data)")
 
@@ -356,25 +361,33 @@ def _parse_motion(
 
 
 def _fast_values(data: bytes, start: int, n_frames: int, n_channels: int) -> np.ndarray | None:
-    """The MOTION block as (frames, channels) with numpy's C parser, chunk by
-    chunk, or None when it does not parse as one frame per line (then the
-    slow path reads it, or explains)."""
+    """The MOTION block as (frames, channels) with numpy's C parser, or None
+    when it does not parse as ``n_frames`` lines of ``n_channels`` numbers
+    (then the slow path reads it, or explains).
+
+    The parser reads the file's own bytes (a ``BytesIO`` over ``data``
+    shares its buffer) into an array of the declared size: no copy of the
+    text, no growing of the result.  The caller has checked that the block
+    is ASCII and holds something other than white space.
+    """
     if data.find(b"_", start) >= 0:  # loadtxt, like float(), reads '1_000'
         return None
-    out = np.empty((n_frames, n_channels))
-    row = 0
-    for piece in _chunks(data, start):
-        if _NON_SPACE.search(piece) is None:
-            continue  # blank lines only (loadtxt would warn)
+    stream = io.BytesIO(data)
+    stream.seek(start)
+    with warnings.catch_warnings():
+        # with max_rows, numpy warns that blank lines do not count as rows
+        warnings.filterwarnings("ignore", "Input line", UserWarning)
         try:
-            vals = np.loadtxt(io.StringIO(piece.decode("ascii")), dtype=float, ndmin=2, comments=None)
+            # one row more than declared: a longer block shows as a wrong count
+            vals = np.loadtxt(stream, dtype=float, ndmin=2, comments=None, max_rows=n_frames + 1)
         except ValueError:
             return None
-        if vals.shape[1] != n_channels or row + len(vals) > n_frames:
-            return None
-        out[row : row + len(vals)] = vals
-        row += len(vals)
-    return out if row == n_frames else None
+    return vals if vals.shape == (n_frames, n_channels) else None
+
+
+def _is_ascii(data: bytes, start: int, block: int = 1 << 24) -> bool:
+    """``data[start:]`` is ASCII (tested a block at a time: no copy of the whole)."""
+    return all(data[i : i + block].isascii() for i in range(start, len(data), block))
 
 
 def _slow_values(data: bytes, start: int, n_frames: int, n_channels: int) -> tuple[np.ndarray | None, str]:
@@ -441,10 +454,9 @@ def _number_format(tokens: list[str], values: np.ndarray) -> str:
     digits = max(len(t.lower().split("e")[0].lstrip("+-").replace(".", "").lstrip("0")) for t in sample)
     if decimals <= 12 and _whole_scaled(values, 10.0**decimals):
         return f"%.{decimals}f"
-    nz = values[values != 0.0]
     if digits <= 17 and all(
         _whole(part * 10.0 ** (max(digits, 1) - 1 - np.floor(np.log10(np.abs(part)))))
-        for part in (nz[i : i + (1 << 20)] for i in range(0, len(nz), 1 << 20))
+        for part in (block[block != 0.0] for block in _blocks(values))
     ):
         return f"%.{max(digits, 1)}g"
     return "%.17g"
@@ -456,7 +468,16 @@ def _whole(scaled: np.ndarray) -> bool:
     return bool(np.all(np.abs(scaled - np.rint(scaled)) <= 1e-7 * np.maximum(1.0, np.abs(scaled)) + 1e-9))
 
 
-def _whole_scaled(values: np.ndarray, scale, block: int = 1 << 20) -> bool:
+#: Values per block of the vectorized checks of a whole MOTION block: their
+#: temporaries (a few arrays of a block each) stay a few MB.
+_BLOCK = 1 << 18
+
+
+def _blocks(values: np.ndarray):
+    return (values[i : i + _BLOCK] for i in range(0, len(values), _BLOCK))
+
+
+def _whole_scaled(values: np.ndarray, scale, block: int = _BLOCK) -> bool:
     """``_whole(values * scale)`` a block at a time (``scale`` a number or an
     array like ``values``): no temporaries the size of a long clip."""
     for i in range(0, len(values), block):

@@ -515,6 +515,11 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed)
     refine = refine_f * float(motion.frame_time)
+    # the fit below needs neither the placement's copies of the variables nor
+    # world positions: free them first (the largest arrays of a long clip)
+    del variables, proxy
+    if isinstance(motion, BvhMotion):
+        motion.release_world()
 
     parameters = {
         "smoothing": smoothing,
