@@ -144,7 +144,6 @@ endif
 endif
 
 batch: $(STAMP)
-	@$(BYTECODE)
 	@$(STAGGERED) -q batch "$(BATCH_IN)" "$(BATCH_OUT)" --steps "$$STEPS" --dry-run > /dev/null
 	@status=0; $(MAKE) -f "$(BATCH_MAKEFILE)" --no-print-directory _batch-files || status=$$?; \
 	export LC_ALL=C; bad='$(BATCH_BAD_NAME)'; total=0; failed=0; \
