@@ -11,7 +11,7 @@ leaks past them.  Control variables (SPEC section 2) are derived here:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -42,6 +42,10 @@ class BvhMotion:
     source : bytes, the file it was read from (may be empty): writing keeps
         its layout and the text of every number that did not change
         (:func:`staggered_cli.io.bvh.bvh_bytes`).
+
+    ``frame_time_text``, ``number_format`` and ``source`` are the file's
+    layout: only the reader sets them and only the writer reads them;
+    operations carry them along with :meth:`with_channels`.
     """
 
     skeleton: Skeleton
@@ -54,6 +58,30 @@ class BvhMotion:
     @property
     def n_frames(self) -> int:
         return int(self.channels.shape[0])
+
+    def with_channels(
+        self,
+        channels: np.ndarray,
+        frame_time: float | None = None,
+        *,
+        same_text: bool = True,
+        decimals: int | None = None,
+    ) -> BvhMotion:
+        """New channel values in this clip's file layout.  At another
+        ``frame_time`` its token is written anew (7 decimals, trailing zeros
+        dropped); without ``same_text`` the source text is not kept (the
+        frames are not the source's frames, e.g. one frame per pose); with
+        ``decimals`` numbers get at least that many (a clip sampled densely
+        from keys written by hand, which may be whole numbers)."""
+        changes: dict = {"channels": channels}
+        if frame_time is not None and frame_time != self.frame_time:
+            changes.update(frame_time=float(frame_time), frame_time_text=f"{frame_time:.7f}".rstrip("0"))
+        if not same_text:
+            changes["source"] = b""
+        fmt = self.number_format
+        if decimals is not None and fmt[-1:] in ("f", "g"):
+            changes["number_format"] = f"%.{max(int(fmt[2:-1]), decimals)}{fmt[-1]}"
+        return replace(self, **changes)
 
     @property
     def rate(self) -> float:
@@ -136,6 +164,10 @@ class MarkerMotion:
     @property
     def n_frames(self) -> int:
         return int(self.points.shape[0])
+
+    def with_points(self, points: np.ndarray, rate: float | None = None) -> MarkerMotion:
+        """New points (and rate) with this clip's labels, units and source file."""
+        return replace(self, points=points, rate=self.rate if rate is None else float(rate))
 
     @property
     def frame_time(self) -> float:

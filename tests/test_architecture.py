@@ -121,3 +121,22 @@ def test_ops_the_model_and_the_math_import_no_outer_layer(layers, forbidden):
 
 def test_batch_does_not_import_the_command_line():
     assert not {name for name in GRAPH["staggered_cli.batch"] if _under(name, "staggered_cli.cli")}
+
+
+#: A clip's file layout: set by the readers, read by the writers alone.
+LAYOUT = ("frame_time_text", "number_format")
+
+
+def test_only_the_file_formats_read_a_clip_s_layout():
+    """The operations and the model carry a BVH's layout (the frame time as
+    written, the number format) along with ``BvhMotion.with_channels``; only
+    ``staggered_cli.io`` reads it (and motion.py, which defines it)."""
+    readers = set()
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = _module_name(path)
+        if _layer(module) not in ("ops", "model") or module == "staggered_cli.motion":
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        if any(isinstance(n, ast.Attribute) and n.attr in LAYOUT for n in ast.walk(tree)):
+            readers.add(module)
+    assert readers == set(), f"modules that read a clip's file layout: {sorted(readers)}"

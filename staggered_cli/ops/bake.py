@@ -55,13 +55,12 @@ def bake(
             # where the motion is the source's to rounding noise, write the
             # source's own numbers (its -0 and its last digit included)
             channels = np.where(np.abs(channels - ref) < _SAME_VALUE, ref, channels)
-        text = src.frame_time_text if same_rate else _frame_time_text(frame_time)
-        return BvhMotion(src.skeleton, channels, frame_time, text, src.number_format, source=src.source)
+        return src.with_channels(channels, None if same_rate else frame_time)
     src = doc.source
     pts = marker_points(doc, t, layers)
     if ik and layers == "all" and doc.constraints:
         pts = contact_layer.marker_layer(doc, pts, t, ik_blend, same_rate)
-    return MarkerMotion(src.labels, pts, 1.0 / frame_time, src.units, src.source)
+    return src.with_points(pts, 1.0 / frame_time)
 
 
 def is_same_rate(doc: Document, fps: float | None) -> bool:
@@ -87,7 +86,3 @@ def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
             f"and {MAX_OUTPUT_FRAMES} frames"
         )
     return np.minimum(np.arange(n) / fps, doc.duration)
-
-
-def _frame_time_text(ft: float) -> str:
-    return f"{ft:.7f}".rstrip("0")

@@ -77,7 +77,7 @@ def export_poses(doc: Document, on: str = "true") -> BvhMotion:
     # where a pose is the source's to rounding noise, write the source's own
     # numbers (its -0 and last digit included), as bake does
     channels = np.where(np.abs(channels - ref) < 1e-9, ref, channels)
-    return BvhMotion(src.skeleton, channels, src.frame_time, src.frame_time_text, src.number_format)
+    return src.with_channels(channels, same_text=False)
 
 
 def _warn_layers(doc: Document, what: str) -> None:
@@ -362,7 +362,7 @@ def new_document(
     ch[:, cols] = np.unwrap(ch[:, cols], period=360.0, axis=0)
     ref = np.stack([np.interp(frame_t, t, ch[:, c]) for c in range(ch.shape[1])], axis=1) if ch.shape[1] else ch
     dense = channels_from_local(sk, drot, dtra, ref)
-    source = BvhMotion(sk, dense, ft, keys.frame_time_text, _dense_format(keys.number_format))
+    source = keys.with_channels(dense, same_text=False, decimals=6)
     priority = np.zeros(len(t))
     priority[[0, -1]] = np.inf
     return Doc(
@@ -374,13 +374,3 @@ def new_document(
         source_sha256=hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else "",
         parameters={"new": {"keys": int(keys.n_frames), "times": [float(x) for x in t]}},
     )
-
-
-def _dense_format(fmt: str) -> str:
-    """The number format of the sampled source: the keys' own, with at least
-    six decimals (a key file blocked by hand may have whole numbers)."""
-    if fmt.endswith("f"):
-        return f"%.{max(int(fmt[2:-1]), 6)}f"
-    if fmt.endswith("g"):
-        return f"%.{max(int(fmt[2:-1]), 6)}g"
-    return fmt
