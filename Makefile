@@ -84,6 +84,10 @@ demo: $(STAMP)
 	$(S) bake $(DEMO_OUT)/march_loose.stag -o $(DEMO_OUT)/march_loose.bvh --force
 	$(S) edit-pose $(DEMO_OUT)/march.stag --pose 3 --exaggerate 1.5 --relative-to average -o - \
 	  | $(S) bake - -o $(DEMO_OUT)/march_exaggerated.bvh --force
+	$(S) layer $(DEMO_OUT)/march.stag --add --keep 4 -o - \
+	  | $(S) edit-pose - --layer 1 --pose 1 --rotate LeftArm=0,0,15 -o - \
+	  | $(S) detail - --gain 0.5 -o - \
+	  | $(S) bake - -o $(DEMO_OUT)/march_layered.bvh --force
 	$(S) extract data/samples/march.c3d -o - | $(S) bake - -o $(DEMO_OUT)/march.c3d --force
 	$(S) bake $(DEMO_OUT)/march.stag -o $(DEMO_OUT)/march_roundtrip.bvh --force
 	@cmp -s data/samples/march.bvh $(DEMO_OUT)/march_roundtrip.bvh && echo "round trip: $(DEMO_OUT)/march_roundtrip.bvh is byte-identical to the sample"
@@ -91,7 +95,7 @@ demo: $(STAMP)
 	$(S) plot $(DEMO_OUT)/march_loose.stag --kind timing --dpi 72 -o $(DEMO_OUT)/timing.png --force
 	$(S) plot $(DEMO_OUT)/march_loose.stag --kind curves --joints RightArm,RightForeArm,RightHand --dpi 72 -o $(DEMO_OUT)/curves.png --force
 	$(S) preview $(DEMO_OUT)/march_loose.stag --compare data/samples/march.bvh --dpi 72 -o $(DEMO_OUT)/preview.png --force
-	@echo "wrote $(DEMO_OUT)/: march.stag, march_loose.bvh, march_exaggerated.bvh, march.c3d and signals, timing, curves, preview .png"
+	@echo "wrote $(DEMO_OUT)/: march.stag, march_loose.bvh, march_exaggerated.bvh, march_layered.bvh, march.c3d and signals, timing, curves, preview .png"
 
 # The README's pictures, regenerated on purpose (review them before committing).
 pictures: demo
