@@ -268,11 +268,11 @@ def _split_lines(data: bytes, start: int, count: int) -> tuple[list[bytes], int]
     return lines, pos
 
 
-def _chunks(data: bytes, start: int):
-    """``data[start:]`` in pieces of about :data:`_CHUNK_BYTES` ending at a line end."""
+def _chunks(data: bytes, start: int, size: int = _CHUNK_BYTES):
+    """``data[start:]`` in pieces of about ``size`` bytes ending at a line end."""
     pos, end_all = start, len(data)
     while pos < end_all:
-        end = data.find(b"\n", min(pos + _CHUNK_BYTES, end_all))
+        end = data.find(b"\n", min(pos + size, end_all))
         end = end_all if end < 0 else end + 1
         yield data[pos:end]
         pos = end
@@ -631,43 +631,103 @@ def _in_source_layout(motion: BvhMotion) -> bytes | None:
     lines[1] = frames.group(1) + str(T).encode() + frames.group(3)
     lines[2] = ftime.group(1) + text.encode("ascii") + ftime.group(3)
     head = bom + data[:at] + b"".join(lines)
-    body = data[pos:]
     if T == 0:
         return head
-    parts = _source_numbers(body, T, C)
-    if parts is None:  # another frame count (a resampled bake): the source's line ending
+    kept = _kept_numbers(data, pos, ch, motion.number_format)
+    if kept is None:  # another frame count (a resampled bake): the source's line ending
         newline = lines[2][len(lines[2].rstrip(b"\r\n")) :] or b"\n"
         row = " ".join([motion.number_format] * C) + newline.decode("ascii")
         return head + ((row * T) % tuple(ch.ravel().tolist())).encode("ascii")
-    pieces, first, values = parts
-    changed = np.flatnonzero(values != ch.ravel())
-    if len(changed) == 0:
-        return head + body
-    fmt = motion.number_format
-    new = (" ".join([fmt] * len(changed)) % tuple(ch.ravel()[changed].tolist())).encode("ascii").split(b" ")
-    for i, tok in zip((first + 2 * changed).tolist(), new, strict=True):
-        pieces[i] = tok
-    return head + b"".join(pieces)
+    return b"".join([head, *kept])
 
 
-def _source_numbers(body: bytes, T: int, C: int) -> tuple[list[bytes], int, np.ndarray] | None:
-    """The MOTION block split into tokens and the whitespace between them
-    (``pieces``: number ``n`` is ``pieces[first + 2 n]``) with their values
-    ``(T * C,)``; None unless it holds exactly ``T * C`` plain numbers."""
-    if not body.isascii() or b"_" in body:
+#: The writer rewrites the source's MOTION block this many bytes at a time:
+#: its tokens (a Python object each) then take a few MB, not ten times the file.
+_WRITE_CHUNK_BYTES = 1 << 20
+_SPACES = re.compile(rb"(\s+)")
+
+
+def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> list[bytes] | None:
+    """The source's MOTION block ``data[start:]``, in pieces to join, with
+    every number that is not the value at its place in ``channels`` (T, C)
+    printed with ``fmt`` and every other token and all the white space kept;
+    None unless the block holds exactly T * C plain numbers."""
+    if data.find(b"_", start) >= 0 or not _is_ascii(data, start):
         return None
-    pieces = re.split(rb"(\s+)", body)
-    first = 2 if pieces and pieces[0] == b"" else 0
-    tokens = pieces[first::2]
-    if tokens and tokens[-1] == b"":
-        tokens = tokens[:-1]
-    if len(tokens) != T * C:
-        return None
-    try:
-        values = np.array(tokens, dtype=float)
-    except ValueError:
-        return None
-    return pieces, first, values
+    T, C = channels.shape
+    changed_rows = None
+    if channels.size and _NON_SPACE.search(data, start) is not None:
+        # the reader's fast parse: when no number changed (a round trip) the
+        # block is the source's, and no token need be looked at; with one
+        # frame a line and no blank line, only the lines that changed are
+        values = _fast_values(data, start, T, C)
+        if values is not None:
+            rows = np.any(values != channels, axis=1)
+            if not rows.any():
+                return [data[start:]]
+            lines = data.count(b"\n", start) + (not data.endswith(b"\n"))
+            if lines == T:
+                changed_rows = rows
+    if changed_rows is not None:
+        kept = _replace_tokens(data, start, channels, fmt, changed_rows, values)
+        if kept is not None:
+            return kept
+    return _replace_tokens(data, start, channels, fmt)
+
+
+def _replace_tokens(
+    data: bytes,
+    start: int,
+    channels: np.ndarray,
+    fmt: str,
+    changed_rows: np.ndarray | None = None,
+    source: np.ndarray | None = None,
+) -> list[bytes] | None:
+    """:func:`_kept_numbers` a piece of :data:`_WRITE_CHUNK_BYTES` at a time.
+    With ``changed_rows`` (T,) and the ``source`` values (T, C) (the block is
+    one frame a line), pieces without a changed frame are kept whole and the
+    others' numbers are not parsed again."""
+    flat = channels.ravel()
+    C = channels.shape[1]
+    out: list[bytes] = []
+    k, row, total = 0, 0, len(flat)
+    for piece in _chunks(data, start, _WRITE_CHUNK_BYTES):
+        if changed_rows is not None:
+            n_rows = piece.count(b"\n") + (not piece.endswith(b"\n"))
+            if not changed_rows[row : row + n_rows].any():
+                out.append(piece)
+                row, k = row + n_rows, k + n_rows * C
+                continue
+        # split into tokens and the white space between them: number n of
+        # the piece is pieces[first + 2 n] (a run of white space cut at the
+        # piece's end stays two runs: the joined bytes are the same)
+        pieces = _SPACES.split(piece)
+        first = 2 if pieces and pieces[0] == b"" else 0
+        tokens = pieces[first::2]
+        if tokens and tokens[-1] == b"":
+            tokens = tokens[:-1]
+        n = len(tokens)
+        if k + n > total or (changed_rows is not None and n != n_rows * C):
+            return None
+        if n:
+            if source is not None:
+                values = source[row : row + n_rows].ravel()
+            else:
+                try:
+                    values = np.array(tokens, dtype=float)
+                except ValueError:
+                    return None
+            changed = np.flatnonzero(values != flat[k : k + n])
+            if len(changed):
+                new = (" ".join([fmt] * len(changed)) % tuple(flat[k + changed].tolist())).encode("ascii")
+                for i, tok in zip((first + 2 * changed).tolist(), new.split(b" "), strict=True):
+                    pieces[i] = tok
+                piece = b"".join(pieces)
+        out.append(piece)
+        k += n
+        if changed_rows is not None:
+            row += n_rows
+    return out if k == total else None
 
 
 def write_bvh(path: str | os.PathLike, motion: BvhMotion, force: bool = True) -> None:
