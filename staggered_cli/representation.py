@@ -495,14 +495,24 @@ def evaluate(track: Track, t: np.ndarray, layers: str = "all", depth: int | None
     -------
     (N, V, D) values (unit quaternions w first for rotations).
     """
+    if layers not in ("all", "splines"):
+        raise ValueError(f"layers must be 'all' or 'splines', got {layers!r}")
     t = np.asarray(t, dtype=float)
     V, N = track.n_vars, len(t)
-    var = np.broadcast_to(np.arange(V)[None, :], (N, V)).ravel()
-    tt = np.repeat(t, V)
-    # the queries grouped by variable without sorting: variable i's are i, i + V, ...
-    order = np.arange(N * V).reshape(N, V).T.ravel()
-    bounds = np.arange(V + 1) * N
-    return evaluate_at(track, var, tt, layers, depth, _grouped=(order, bounds)).reshape(N, V, track.dim)
+    stack = track.layers if depth is None else track.layers[:depth]
+    tables = [_detail_table(track.kind, lay) if layers == "all" and lay.has_detail else None for lay in stack]
+    out = np.empty((N, V, track.dim))
+    # in blocks of frames, so that the temporaries stay small whatever the length
+    rows = max(1, _BLOCK // max(V, 1))
+    for lo in range(0, N, rows):
+        tb = t[lo : lo + rows]
+        n = len(tb)
+        var = np.broadcast_to(np.arange(V)[None, :], (n, V)).ravel()
+        # the queries grouped by variable without sorting: variable i's are i, i + V, ...
+        order = np.arange(n * V).reshape(n, V).T.ravel()
+        bounds = np.arange(V + 1) * n
+        out[lo : lo + n] = _fold(track, stack, tables, var, np.repeat(tb, V), order, bounds).reshape(n, V, track.dim)
+    return out
 
 
 def evaluate_at(
@@ -511,7 +521,6 @@ def evaluate_at(
     t: np.ndarray,
     layers: str = "all",
     depth: int | None = None,
-    _grouped: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Values of variable ``var[n]`` at time ``t[n]``: (N, D), the layers
     folded bottom up (``v = l_0 ⊕ l_1 ⊕ ...``)."""
@@ -519,15 +528,24 @@ def evaluate_at(
         raise ValueError(f"layers must be 'all' or 'splines', got {layers!r}")
     var = np.asarray(var, dtype=int)
     t = np.asarray(t, dtype=float)
-    if _grouped is None:
-        order = np.argsort(var, kind="stable")
-        bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
-    else:
-        order, bounds = _grouped
+    order = np.argsort(var, kind="stable")
+    bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
     stack = track.layers if depth is None else track.layers[:depth]
+    tables = [_detail_table(track.kind, lay) if layers == "all" and lay.has_detail else None for lay in stack]
+    return _fold(track, stack, tables, var, t, order, bounds)
+
+
+#: Queries evaluated at once by :func:`evaluate` (its temporaries: a few
+#: arrays of this many values and their (N, 4) companions, about 10 MB).
+_BLOCK = 1 << 16
+
+
+def _fold(track: Track, stack, tables, var, t, order, bounds) -> np.ndarray:
+    """``l_0 ⊕ l_1 ⊕ ...`` over ``stack`` (a layer's ``tables`` entry: its
+    displacement table, or None for its spline alone)."""
     out = None
-    for layer in stack:
-        val = layer_at(track.kind, layer, var, t, order, bounds, detail=layers == "all")
+    for layer, table in zip(stack, tables, strict=True):
+        val = layer_at(track.kind, layer, var, t, order, bounds, detail=table is not None, table=table)
         out = val if out is None else track.ops.oplus(out, val)
     if track.kind == ROTATION and len(stack) > 1:
         out = quat.normalize(out)
@@ -542,10 +560,12 @@ def layer_at(
     order: np.ndarray | None = None,
     bounds: np.ndarray | None = None,
     detail: bool = True,
+    table: list | None = None,
 ) -> np.ndarray:
     """Values (N, D) of one layer (spline ⊕ displacement, or the spline alone
     without ``detail``) of variable ``var[n]`` at time ``t[n]``.  ``order``
-    and ``bounds`` group the queries by variable (computed when not given)."""
+    and ``bounds`` group the queries by variable, ``table`` is the layer's
+    :func:`_detail_table` (each computed when not given)."""
     knots = layer.knots
     V = knots.n_vars
     if order is None:
@@ -575,10 +595,30 @@ def layer_at(
         val[single] = knots.v[knots.ptr[var[single]]]
     if not detail or not layer.has_detail:
         return val
-    return ops.oplus(val, _displacement_at(kind, layer, s, order, bounds))
+    if table is None:
+        table = _detail_table(kind, layer)
+    return ops.oplus(val, _displacement_at(kind, table, s, order, bounds))
 
 
-def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+def _detail_table(kind: str, layer: Layer) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per variable, the displacement map as sorted knot coordinates and
+    values, the identity added at every knot (integer coordinate)."""
+    ops = kinds.ops_for(kind)
+    D = ops.dim
+    ident = ops.identity()
+    knots = layer.knots
+    out = []
+    for i in range(knots.n_vars):
+        n_knots = int(knots.ptr[i + 1] - knots.ptr[i])
+        sl = layer.samples(i)
+        xs = np.concatenate([layer.samp_s[sl], np.arange(n_knots, dtype=float)])
+        ys = np.concatenate([layer.samp_d[sl], np.broadcast_to(ident, (n_knots, D))])
+        o = np.argsort(xs, kind="stable")
+        out.append((xs[o], ys[o]))
+    return out
+
+
+def _displacement_at(kind: str, table: list, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """Displacement (N, D) at knot coordinates ``s``, identity at integers."""
     ops = kinds.ops_for(kind)
     N = len(s)
@@ -586,18 +626,10 @@ def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, 
     lo_val = np.zeros((N, D))
     hi_val = np.zeros((N, D))
     w = np.zeros(N)
-    ident = ops.identity()
-    knots = layer.knots
-    for i in range(knots.n_vars):
+    for i, (xs, ys) in enumerate(table):
         idx = order[bounds[i] : bounds[i + 1]]
         if len(idx) == 0:
             continue
-        n_knots = int(knots.ptr[i + 1] - knots.ptr[i])
-        sl = layer.samples(i)
-        xs = np.concatenate([layer.samp_s[sl], np.arange(n_knots, dtype=float)])
-        ys = np.concatenate([layer.samp_d[sl], np.broadcast_to(ident, (n_knots, D))])
-        o = np.argsort(xs, kind="stable")
-        xs, ys = xs[o], ys[o]
         si = s[idx]
         hi = (
             np.clip(np.searchsorted(xs, si, side="right"), 1, len(xs) - 1)
