@@ -500,7 +500,6 @@ def evaluate(track: Track, t: np.ndarray, layers: str = "all", depth: int | None
     t = np.asarray(t, dtype=float)
     V, N = track.n_vars, len(t)
     stack = track.layers if depth is None else track.layers[:depth]
-    tables = [_detail_table(track.kind, lay) if layers == "all" and lay.has_detail else None for lay in stack]
     out = np.empty((N, V, track.dim))
     # in blocks of frames, so that the temporaries stay small whatever the length
     rows = max(1, _BLOCK // max(V, 1))
@@ -511,7 +510,9 @@ def evaluate(track: Track, t: np.ndarray, layers: str = "all", depth: int | None
         # the queries grouped by variable without sorting: variable i's are i, i + V, ...
         order = np.arange(n * V).reshape(n, V).T.ravel()
         bounds = np.arange(V + 1) * n
-        out[lo : lo + n] = _fold(track, stack, tables, var, np.repeat(tb, V), order, bounds).reshape(n, V, track.dim)
+        out[lo : lo + n] = _fold(track, stack, layers == "all", var, np.repeat(tb, V), order, bounds).reshape(
+            n, V, track.dim
+        )
     return out
 
 
@@ -531,8 +532,7 @@ def evaluate_at(
     order = np.argsort(var, kind="stable")
     bounds = np.searchsorted(var[order], np.arange(track.n_vars + 1))
     stack = track.layers if depth is None else track.layers[:depth]
-    tables = [_detail_table(track.kind, lay) if layers == "all" and lay.has_detail else None for lay in stack]
-    return _fold(track, stack, tables, var, t, order, bounds)
+    return _fold(track, stack, layers == "all", var, t, order, bounds)
 
 
 #: Queries evaluated at once by :func:`evaluate` (its temporaries: a few
@@ -540,12 +540,12 @@ def evaluate_at(
 _BLOCK = 1 << 16
 
 
-def _fold(track: Track, stack, tables, var, t, order, bounds) -> np.ndarray:
-    """``l_0 ⊕ l_1 ⊕ ...`` over ``stack`` (a layer's ``tables`` entry: its
-    displacement table, or None for its spline alone)."""
+def _fold(track: Track, stack, detail: bool, var, t, order, bounds) -> np.ndarray:
+    """``l_0 ⊕ l_1 ⊕ ...`` over ``stack`` (with their displacement maps, or
+    the splines alone)."""
     out = None
-    for layer, table in zip(stack, tables, strict=True):
-        val = layer_at(track.kind, layer, var, t, order, bounds, detail=table is not None, table=table)
+    for layer in stack:
+        val = layer_at(track.kind, layer, var, t, order, bounds, detail=detail)
         out = val if out is None else track.ops.oplus(out, val)
     if track.kind == ROTATION and len(stack) > 1:
         out = quat.normalize(out)
@@ -560,12 +560,10 @@ def layer_at(
     order: np.ndarray | None = None,
     bounds: np.ndarray | None = None,
     detail: bool = True,
-    table: list | None = None,
 ) -> np.ndarray:
     """Values (N, D) of one layer (spline ⊕ displacement, or the spline alone
     without ``detail``) of variable ``var[n]`` at time ``t[n]``.  ``order``
-    and ``bounds`` group the queries by variable, ``table`` is the layer's
-    :func:`_detail_table` (each computed when not given)."""
+    and ``bounds`` group the queries by variable (computed when not given)."""
     knots = layer.knots
     V = knots.n_vars
     if order is None:
@@ -595,53 +593,45 @@ def layer_at(
         val[single] = knots.v[knots.ptr[var[single]]]
     if not detail or not layer.has_detail:
         return val
-    if table is None:
-        table = _detail_table(kind, layer)
-    return ops.oplus(val, _displacement_at(kind, table, s, order, bounds))
+    return ops.oplus(val, _displacement_at(kind, layer, s, order, bounds))
 
 
-def _detail_table(kind: str, layer: Layer) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per variable, the displacement map as sorted knot coordinates and
-    values, the identity added at every knot (integer coordinate)."""
-    ops = kinds.ops_for(kind)
-    D = ops.dim
-    ident = ops.identity()
-    knots = layer.knots
-    out = []
-    for i in range(knots.n_vars):
-        n_knots = int(knots.ptr[i + 1] - knots.ptr[i])
-        sl = layer.samples(i)
-        xs = np.concatenate([layer.samp_s[sl], np.arange(n_knots, dtype=float)])
-        ys = np.concatenate([layer.samp_d[sl], np.broadcast_to(ident, (n_knots, D))])
-        o = np.argsort(xs, kind="stable")
-        out.append((xs[o], ys[o]))
-    return out
+def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Displacement (N, D) at knot coordinates ``s``, identity at integers.
 
-
-def _displacement_at(kind: str, table: list, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    """Displacement (N, D) at knot coordinates ``s``, identity at integers."""
+    Each variable's samples are sorted by knot coordinate (the fit makes
+    them so and reading checks it); the identity at the knots is not stored
+    but met where the nearest sample lies in another segment, so nothing
+    is copied.
+    """
     ops = kinds.ops_for(kind)
     N = len(s)
     D = ops.dim
-    lo_val = np.zeros((N, D))
-    hi_val = np.zeros((N, D))
+    ident = ops.identity()
+    lo_val = np.broadcast_to(ident, (N, D)).copy()
+    hi_val = lo_val.copy()
     w = np.zeros(N)
-    for i, (xs, ys) in enumerate(table):
+    for i in range(layer.knots.n_vars):
         idx = order[bounds[i] : bounds[i + 1]]
         if len(idx) == 0:
             continue
+        sl = layer.samples(i)
+        xs, ys = layer.samp_s[sl], layer.samp_d[sl]
         si = s[idx]
-        hi = (
-            np.clip(np.searchsorted(xs, si, side="right"), 1, len(xs) - 1)
-            if len(xs) > 1
-            else np.zeros(len(si), dtype=int)
-        )
-        lo = np.maximum(hi - 1, 0)
-        span = xs[hi] - xs[lo]
-        ww = np.where(span > 0, (si - xs[lo]) / np.where(span > 0, span, 1.0), 0.0)
-        lo_val[idx] = ys[lo]
-        hi_val[idx] = ys[hi]
-        w[idx] = np.clip(ww, 0.0, 1.0)
+        j = np.floor(si)
+        x_lo, x_hi = j, j + 1.0  # the knots around each query, identity there
+        if len(xs):
+            k = np.searchsorted(xs, si, side="right")
+            below = k > 0
+            kb = np.maximum(k - 1, 0)
+            left = below & (xs[kb] > j)  # a sample of this segment at or before s
+            x_lo = np.where(left, xs[kb], x_lo)
+            lo_val[idx[left]] = ys[kb[left]]
+            ka = np.minimum(k, len(xs) - 1)
+            right = (k < len(xs)) & (xs[ka] < j + 1.0)  # a sample of this segment after s
+            x_hi = np.where(right, xs[ka], x_hi)
+            hi_val[idx[right]] = ys[ka[right]]
+        w[idx] = np.clip((si - x_lo) / (x_hi - x_lo), 0.0, 1.0)
     return ops.interpolate(lo_val, hi_val, w)
 
 

@@ -22,13 +22,17 @@ def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.nd
     N = len(t)
     rot = quat.identity((N, sk.n_joints))
     tr = np.broadcast_to(sk.offsets, (N, sk.n_joints, 3)).copy()
+    t = np.asarray(t, dtype=float)
+    step = _FRAMES_AT_ONCE
     for track in doc.tracks:
-        vals = evaluate(track, t, layers)
-        if track.kind == ROTATION:
-            rot[:, track.targets] = vals
-        else:
-            tr[:, track.targets] = vals
+        into = rot if track.kind == ROTATION else tr
+        for lo in range(0, N, step):  # a block at a time: no second copy of the whole clip
+            into[lo : lo + step, track.targets] = evaluate(track, t[lo : lo + step], layers)
     return rot, tr
+
+
+#: Frames evaluated at once by :func:`local_pose`.
+_FRAMES_AT_ONCE = 2048
 
 
 def marker_points(doc: Document, t: np.ndarray, layers: str = "all") -> np.ndarray:

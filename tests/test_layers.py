@@ -348,3 +348,13 @@ def test_export_poses_says_it_exports_the_base_layer(walk_file, tmp_path):
     assert "export-poses works on the base layer's poses; the layer above it stays as it is" in r.stderr
     plain = run(["export-poses", str(walk_file), "-o", str(tmp_path / "plain.bvh")])
     assert plain.exit_code == 0 and "layer" not in plain.stderr
+
+
+def test_displacement_samples_out_of_order_are_refused(walk):
+    manifest, arrays = to_parts(walk)
+    key = "track1.layer0.samp_s"
+    s = arrays[key].copy()
+    s[[10, 11]] = s[[11, 10]]
+    arrays = {**arrays, key: s}
+    with pytest.raises(Exception, match="samples are not in order"):
+        from_parts(manifest, arrays)

@@ -1064,6 +1064,8 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
     nseg = np.diff(knot_ptr) - 1
     owner = np.repeat(np.arange(V), np.diff(samp_ptr))
     need(bool(np.all((samp_s >= 0) & (samp_s <= nseg[owner]))), f"{p}samples lie outside their variable's segments")
+    same_var = owner[1:] == owner[:-1]
+    need(bool(np.all(np.diff(samp_s)[same_var] >= 0)), f"{p}a variable's samples are not in order")
     if kind == ROTATION:
         need(
             bool(np.all(np.abs(np.linalg.norm(knot_v, axis=1) - 1) < 1e-6)),
