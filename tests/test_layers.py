@@ -358,3 +358,26 @@ def test_displacement_samples_out_of_order_are_refused(walk):
     arrays = {**arrays, key: s}
     with pytest.raises(Exception, match="samples are not in order"):
         from_parts(manifest, arrays)
+
+
+def test_ease_and_detail_survive_a_retime(walk):
+    """A succession down the left arm keeps the eased segments and the
+    softened detail of every other variable to the bit."""
+    k = walk.n_poses // 2
+    edited = layers.detail(layers.ease(walk, k, 2.0), 0.5)
+    moved = succession(edited, 0.03, 1.5, joint="LeftShoulder", clamp=True)
+    before, after = edited.tracks[1], moved.tracks[1]
+    arm = {"LeftShoulder", "LeftArm", "LeftForeArm", "LeftHand", "LeftFingerBase", "LeftHandIndex1", "LThumb"}
+    others = [i for i, n in enumerate(before.names) if n not in arm]
+    assert len(others) > 20
+    for i in others:
+        a, b = before.knot_slice(i), after.knot_slice(i)
+        np.testing.assert_array_equal(after.knot_t[b], before.knot_t[a])
+        sa = slice(a.start - i, a.stop - i - 1)  # the variable's segments
+        sb = slice(b.start - i, b.stop - i - 1)
+        np.testing.assert_array_equal(after.tan_a[sb], before.tan_a[sa])
+        np.testing.assert_array_equal(after.tan_b[sb], before.tan_b[sa])
+        np.testing.assert_array_equal(after.samp_d[after.samples(i)], before.samp_d[before.samples(i)])
+    # and the arm's retiming changed something
+    i = before.names.index("LeftForeArm")
+    assert not np.array_equal(after.knot_t[after.knot_slice(i)], before.knot_t[before.knot_slice(i)])
