@@ -37,7 +37,9 @@ class KindOps:
     (``u`` against the leading axes), ``identity(shape)`` and ``dim``; and
     the kind's cubic segments (:mod:`splines`): ``spline_at(p0, a, b, p3,
     seg, u)`` evaluates segments ``seg`` at ``u``, ``linear_controls(p0, p3)``
-    gives the inner controls of the uniform-speed segment.
+    gives the inner controls of the uniform-speed segment; ``normalize(v)``
+    returns values to the kind's set after arithmetic (unit quaternions; a
+    translation is any vector, returned as it is).
     """
 
     kind: str
@@ -47,6 +49,7 @@ class KindOps:
     scale: Callable[[np.ndarray, np.ndarray | float], np.ndarray]
     interpolate: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     identity: Callable[[tuple[int, ...]], np.ndarray]
+    normalize: Callable[[np.ndarray], np.ndarray]
     spline_at: Callable[..., np.ndarray]
     linear_controls: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -89,6 +92,7 @@ TRANSLATION_OPS = KindOps(
     scale=_t_scale,
     interpolate=_t_interpolate,
     identity=_t_identity,
+    normalize=lambda v: v,
     spline_at=splines.bezier_eval_at,
     linear_controls=splines.default_translation_tangents,
 )
@@ -101,6 +105,7 @@ ROTATION_OPS = KindOps(
     scale=_r_scale,
     interpolate=_r_interpolate,
     identity=quat.identity,
+    normalize=quat.normalize,
     spline_at=splines.rotation_eval_at,
     linear_controls=splines.default_rotation_tangents,
 )

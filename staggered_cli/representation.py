@@ -547,9 +547,7 @@ def _fold(track: Track, stack, detail: bool, var, t, order, bounds) -> np.ndarra
     for layer in stack:
         val = layer_at(track.kind, layer, var, t, order, bounds, detail=detail)
         out = val if out is None else track.ops.oplus(out, val)
-    if track.kind == ROTATION and len(stack) > 1:
-        out = quat.normalize(out)
-    return out
+    return track.ops.normalize(out) if len(stack) > 1 else out
 
 
 def layer_at(

@@ -65,8 +65,7 @@ def _apply_delta(doc: Document, k: int, deltas: list[np.ndarray | None], on: str
         mine = tr.knot_pose == k
         knot_v = tr.knot_v.copy()
         knot_v[mine] = ops_for(tr.kind).oplus(tr.knot_v[mine], d[var[mine]])
-        if tr.kind == ROTATION:
-            knot_v = quat.normalize(knot_v)
+        knot_v = ops_for(tr.kind).normalize(knot_v)
         tracks.append(tr.with_knot_values(knot_v))
     return doc.with_tracks(tuple(tracks))
 

@@ -154,9 +154,7 @@ def apply_offset(doc: Document, layer: int, k: int, deltas: list[np.ndarray | No
         above = stack_values(tr, t, layer + 1)
         change = ops.oplus(ops.oplus(above, d), ops.ominus(ops.identity((tr.n_vars,)), above))
         v = lay.knots.v.copy()
-        v[mine] = ops.oplus(v[mine], change[var])
-        if tr.kind == ROTATION:
-            v[mine] = quat.normalize(v[mine])
+        v[mine] = ops.normalize(ops.oplus(v[mine], change[var]))
         tracks.append(tr.with_knot_values(v, layer))
     return doc.with_tracks(tuple(tracks))
 
@@ -270,9 +268,7 @@ def detail(
                 g = np.where(masks[n][owner], g, 1.0)
             if np.all(g == 1.0):
                 continue
-            d = tr.ops.scale(lay.samp_d, g)
-            if tr.kind == ROTATION:
-                d = quat.normalize(d)
+            d = tr.ops.normalize(tr.ops.scale(lay.samp_d, g))
             d = np.where((g == 1.0)[:, None], lay.samp_d, d)  # exactly as they were outside
             tr = tr.with_layer(li, replace(lay, samp_d=d))
         tracks.append(tr)

@@ -211,9 +211,7 @@ def apply_pose_file(
         hit = change[tr.knot_pose, var]
         knot_v = tr.knot_v.copy()
         d = delta[tr.knot_pose[hit], var[hit]]
-        knot_v[hit] = op.oplus(tr.knot_v[hit], d)
-        if tr.kind == ROTATION:
-            knot_v[hit] = quat.normalize(knot_v[hit])  # unit quaternions stay unit
+        knot_v[hit] = op.normalize(op.oplus(tr.knot_v[hit], d))  # unit quaternions stay unit
         tracks.append(_with_knot_values(tr, knot_v))
     return doc.with_tracks(tuple(tracks)), int(touched.any(axis=1).sum()), int(touched.any(axis=0).sum())
 
