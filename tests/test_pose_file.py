@@ -17,7 +17,7 @@ from staggered_cli.ops import pose_file as P
 from staggered_cli.ops.bake import bake
 
 from .conftest import cli_document, dev_motion, mocap, one_line_error
-from .test_ops import _lag
+from .test_ops import shifted_within_a_frame
 
 CLIPS = ["bandai1_walk_normal_001.bvh", "cmu_02_01_walk.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh"]
 
@@ -315,18 +315,17 @@ def test_succession_on_new_keys_shifts_extremes_by_s_d_power():
     b = local_rotations_from_channels(sk, bake(out, ik=False).channels)
     ft = doc.frame_time
     names = doc.variable_names
-    hits = total = 0
-    for k in range(1, doc.n_poses - 1):
-        f = frames[k]
-        for j in np.flatnonzero(depth > 0):
-            if sk.names[j] not in names or np.degrees(quat.angle_between(a[f - 3, j], a[f + 3, j])) < 0.05:
-                continue
-            expect = offset * depth[j] ** power
-            total += 1
-            hits += abs(_lag(a[:, j], b[:, j], f, int(expect / ft) + 6) * ft - expect) <= ft
-            # the key itself now sits at the shifted time
-            g = int(round((doc.pose_t[k] + expect) / ft))
-            assert np.degrees(quat.angle_between(b[g, j], a[f, j])) < 1.0
+    cases = [
+        (j, frames[k], offset * depth[j] ** power)
+        for k in range(1, doc.n_poses - 1)
+        for j in np.flatnonzero(depth > 0)
+        if sk.names[j] in names
+    ]
+    hits, counted = shifted_within_a_frame(a, b, cases, ft, still=0.05)
+    total = len(counted)
+    for j, f, expect in counted:  # the key itself now sits at the shifted time
+        g = int(round((doc.pose_t[frames.index(f)] + expect) / ft))
+        assert np.degrees(quat.angle_between(b[g, j], a[f, j])) < 1.0
     assert total >= 10
     assert hits / total >= 0.8, (hits, total)
 
