@@ -79,6 +79,17 @@ class Knots:
         """(V+1,) offsets of the segments (one fewer than the knots per variable)."""
         return self.ptr - np.arange(self.n_vars + 1)
 
+    @property
+    def seg_var(self) -> np.ndarray:
+        """(S,) the variable each segment belongs to."""
+        return np.repeat(np.arange(self.n_vars), np.diff(self.seg_ptr))
+
+    @property
+    def seg_first(self) -> np.ndarray:
+        """(S,) the index of each segment's first knot (its second is the next)."""
+        seg_ptr, seg_var = self.seg_ptr, self.seg_var
+        return self.ptr[seg_var] + (np.arange(int(seg_ptr[-1])) - seg_ptr[seg_var])
+
     def of(self, i: int) -> slice:
         return slice(int(self.ptr[i]), int(self.ptr[i + 1]))
 
@@ -121,6 +132,11 @@ class Layer:
 
     def samples(self, i: int) -> slice:
         return slice(int(self.samp_ptr[i]), int(self.samp_ptr[i + 1]))
+
+    @property
+    def samp_var(self) -> np.ndarray:
+        """(NS,) the variable each displacement sample belongs to."""
+        return np.repeat(np.arange(self.knots.n_vars), np.diff(self.samp_ptr))
 
     @property
     def has_detail(self) -> bool:
@@ -399,7 +415,7 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
     v_a = np.concatenate(vals) if vals else np.zeros((0, d))
     s_a = np.concatenate(scoord) if scoord else np.zeros(0)
     owner_a = np.concatenate(owner) if owner else np.zeros(0, dtype=int)
-    first = _segment_first_knots(knots)
+    first = knots.seg_first
     a, b, disp = _fit_segments(kind, knots.v[first], knots.v[first + 1], gseg_a, u_a, v_a, len(first))
     samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner_a, minlength=V))]).astype(int)
     knots = Knots(
@@ -424,14 +440,6 @@ def _fit_segments(kind, p0, p3, gseg, u, values, n_seg):
     a, b = splines.fit_rotation_tangents(p0, p3, gseg[pick], u[pick], values[pick], n_seg, iterations=FIT_ITERATIONS)
     s_val = splines.rotation_eval_at(p0, a, b, p3, gseg, u)
     return a, b, quat.hemisphere(quat.mul(quat.conj(s_val), values), quat.identity((1,)))
-
-
-def _segment_first_knots(knots: Knots) -> np.ndarray:
-    """(S,) the global index of each segment's first knot (its second is the next)."""
-    seg_ptr = knots.seg_ptr
-    n_seg = int(seg_ptr[-1])
-    seg_var = np.repeat(np.arange(knots.n_vars), np.diff(seg_ptr))
-    return knots.ptr[seg_var] + (np.arange(n_seg) - seg_ptr[seg_var])
 
 
 def _evenly_within_segments(seg: np.ndarray, most: int) -> np.ndarray:
@@ -582,7 +590,7 @@ def layer_at(
         s[idx] = seg + uu
     if int(seg_ptr[-1]) == 0:  # single-knot variables (a 1-frame clip): the knot itself
         return knots.v[knots.ptr[var]]
-    first = _segment_first_knots(knots)
+    first = knots.seg_first
     p0, p3 = knots.v[first], knots.v[first + 1]
     ops = kinds.ops_for(kind)
     val = ops.spline_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
@@ -674,8 +682,8 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     old = track.base
     V = track.n_vars
     kept_old = _unchanged_segments(old.knots, knots)  # (S_new,) old segment index or -1
-    new_first = _segment_first_knots(knots)
-    seg_var = knots.var[new_first] if len(new_first) else np.zeros(0, dtype=int)
+    new_first = knots.seg_first
+    seg_var = knots.seg_var
     refit = np.flatnonzero(kept_old < 0)
     # samples of the segments to refit, per variable
     samples_t, samples_var, samples_seg = [], [], []
@@ -712,7 +720,7 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
     tan_a[refit], tan_b[refit] = a_new, b_new
     # displacement samples: the kept segments' own (re-indexed), the refitted ones' new
-    old_owner = np.repeat(np.arange(V), np.diff(old.samp_ptr))
+    old_owner = old.samp_var
     old_local = np.floor(old.samp_s).astype(int)
     old_local = np.minimum(old_local, np.maximum(np.diff(old.knots.ptr)[old_owner] - 2, 0))
     old_gseg = old_local + old.knots.seg_ptr[old_owner]
@@ -736,9 +744,9 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
 def _unchanged_segments(old: Knots, new: Knots) -> np.ndarray:
     """For each segment of ``new``, the index of the segment of ``old`` that
     has the same two knots (variable, times and values exactly), else -1."""
-    new_first = _segment_first_knots(new)
+    new_first = new.seg_first
     out = np.full(len(new_first), -1)
-    old_first = _segment_first_knots(old)
+    old_first = old.seg_first
     if len(new_first) == 0 or len(old_first) == 0:
         return out
     for i in range(new.n_vars):

@@ -61,7 +61,7 @@ def _apply_delta(doc: Document, k: int, deltas: list[np.ndarray | None], on: str
         if d is None:
             tracks.append(tr)
             continue
-        var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
+        var = tr.knots.var
         mine = tr.knot_pose == k
         knot_v = tr.knot_v.copy()
         knot_v[mine] = ops_for(tr.kind).oplus(tr.knot_v[mine], d[var[mine]])

@@ -203,9 +203,7 @@ def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndar
     for n, tr in enumerate(doc.tracks):
         lay = tr.layers[layer]
         knots = lay.knots
-        seg_ptr = knots.seg_ptr
-        seg_var = np.repeat(np.arange(tr.n_vars), np.diff(seg_ptr))
-        first = knots.ptr[seg_var] + (np.arange(int(seg_ptr[-1])) - seg_ptr[seg_var])
+        seg_var, first = knots.seg_var, knots.seg_first
         hit = (knots.pose[first] == k) | (knots.pose[first + 1] == k)
         if masks is not None:
             hit &= masks[n][seg_var]
@@ -261,7 +259,7 @@ def detail(
         for li, lay in enumerate(tr.layers):
             if not lay.has_detail:
                 continue
-            owner = np.repeat(np.arange(tr.n_vars), np.diff(lay.samp_ptr))
+            owner = lay.samp_var
             times = np.concatenate([sample_times(tr, i, li) for i in range(tr.n_vars)])
             g = detail_gain(times, gain, time_range, doc.duration)
             if masks is not None:

@@ -117,8 +117,7 @@ def recomposed(
     keep = np.flatnonzero(parents < 0)
     keep = keep[~np.isin(keep, parents[parents >= 0])]
     involved = np.setdiff1d(np.arange(track.n_vars), keep)
-    var_k = np.repeat(np.arange(track.n_vars), np.diff(track.knot_ptr))
-    t = np.unique(np.concatenate([frame_t, track.knot_t[np.isin(var_k, involved)]]))
+    t = np.unique(np.concatenate([frame_t, track.knot_t[np.isin(track.knots.var, involved)]]))
     values = np.zeros((len(t), track.n_vars, 3))
     flat = evaluate_at(track, np.repeat(involved, len(t)), np.tile(t, len(involved)), depth=1)
     values[:, involved] = flat.reshape(len(involved), len(t), 3).transpose(1, 0, 2)
@@ -175,7 +174,7 @@ def _with_variables(new: Layer, old: Layer, keep: np.ndarray) -> Layer:
     if len(keep) == 0:
         return new
     V = new.knots.n_vars
-    seg_var = np.repeat(np.arange(V), np.diff(new.knots.seg_ptr))
+    seg_var = new.knots.seg_var
     knot_v = np.where(np.isin(new.knots.var, keep)[:, None], old.knots.v, new.knots.v)
     tan_a = np.where(np.isin(seg_var, keep)[:, None], old.tan_a, new.tan_a)
     tan_b = np.where(np.isin(seg_var, keep)[:, None], old.tan_b, new.tan_b)

@@ -207,7 +207,7 @@ def apply_pose_file(
             tracks.append(tr)
             continue
         touched[:, t] |= change
-        var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
+        var = tr.knots.var
         hit = change[tr.knot_pose, var]
         knot_v = tr.knot_v.copy()
         d = delta[tr.knot_pose[hit], var[hit]]

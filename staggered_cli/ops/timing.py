@@ -121,15 +121,14 @@ def change_refinements(
 def static_variables(tr: Track, tolerance: float = 1e-9) -> np.ndarray:
     """Mask (V,) of the variables that never move: all knot values equal and
     no displacement (e.g. Bandai's constant position channels on every joint)."""
-    var = np.repeat(np.arange(tr.n_vars), np.diff(tr.knot_ptr))
+    var = tr.knots.var
+    owner = tr.base.samp_var
     first = tr.knot_v[tr.knot_ptr[:-1]]
     if tr.kind == ROTATION:
         knot_dev = 1.0 - np.abs(np.sum(tr.knot_v * first[var], axis=1))
-        owner = np.repeat(np.arange(tr.n_vars), np.diff(tr.samp_ptr))
         disp = 1.0 - np.abs(tr.samp_d[:, 0])
     else:
         knot_dev = np.max(np.abs(tr.knot_v - first[var]), axis=1)
-        owner = np.repeat(np.arange(tr.n_vars), np.diff(tr.samp_ptr))
         disp = np.max(np.abs(tr.samp_d), axis=1) if len(tr.samp_d) else np.zeros(0)
     moving = np.zeros(tr.n_vars, dtype=bool)
     moving[var[knot_dev > tolerance]] = True
