@@ -124,7 +124,9 @@ class Document:
     def poses_of(self, layer: int) -> np.ndarray:
         """The pose times of ``layer`` (0: the base layer's ``pose_t``)."""
         if not 0 <= layer < self.n_layers:
-            raise UsageError(f"--layer must be from 0 to {self.n_layers - 1}, got {layer}")
+            raise UsageError(
+                f"--layer must be from 0 to {self.n_layers - 1} (the document has {self.n_layers}), got {layer}"
+            )
         return self.pose_t if layer == 0 else self.layer_pose_t[layer - 1]
 
     @property
@@ -208,10 +210,27 @@ def check_time_range(doc: Document, time_range: tuple[float, float]) -> tuple[fl
     return float(a), float(b)
 
 
-def check_pose_index(doc: Document, k: int) -> int:
-    if not -doc.n_poses <= k < doc.n_poses:
-        raise UsageError(f"pose {k} is out of range (the document has poses 0 to {doc.n_poses - 1})")
-    return k % doc.n_poses
+def check_pose_index(doc: Document, k: int, layer: int = 0) -> int:
+    """``k`` as a pose index of ``layer`` (negative counts from the end)."""
+    n = len(doc.poses_of(layer))
+    if not -n <= k < n:
+        where = "the document has" if layer == 0 else f"layer {layer} has"
+        raise UsageError(f"pose {k} is out of range ({where} poses 0 to {n - 1})")
+    return k % n
+
+
+def check_pose_move(doc: Document, k: int, new_time: float, layer: int = 0) -> None:
+    """Refuse moving pose ``k`` of ``layer`` to ``new_time`` unless it is an
+    inner pose and the time lies strictly between its neighbours'."""
+    times = doc.poses_of(layer)
+    of = "" if layer == 0 else f" of layer {layer}"
+    if k in (0, len(times) - 1):
+        raise UsageError(f"the first and last pose{of} pin the clip's ends and cannot be retimed")
+    if not np.isfinite(new_time) or not times[k - 1] < new_time < times[k + 1]:
+        raise UsageError(
+            f"pose {k}{of} can move only between its neighbours "
+            f"({doc.seconds(times[k - 1])} and {doc.seconds(times[k + 1])}), got {doc.seconds(new_time)}"
+        )
 
 
 def require_bvh(doc: Document, what: str) -> BvhMotion:

@@ -381,3 +381,32 @@ def test_ease_and_detail_survive_a_retime(walk):
     # and the arm's retiming changed something
     i = before.names.index("LeftForeArm")
     assert not np.array_equal(after.knot_t[after.knot_slice(i)], before.knot_t[before.knot_slice(i)])
+
+
+def test_a_layer_pose_moves_with_its_offset(walk_file, tmp_path):
+    added = tmp_path / "added.stag"
+    assert run(["layer", str(walk_file), "--add", "--times", "0.5,1.25,2", "-o", str(added)]).exit_code == 0
+    r = run(["edit-pose", str(added), "--layer", "1", "--pose", "2", "--rotate", "LeftArm=0,0,10", "--time", "1.4"])
+    assert r.exit_code == 0, r.stderr
+    doc = from_parts(*parse_document(r.stdout_bytes, "test"))
+    assert doc.poses_of(1)[2] == pytest.approx(1.4) and doc.poses_of(1)[1] == pytest.approx(0.5)
+    ti, i = doc.variable("LeftArm")
+    lay = doc.tracks[ti].layers[1]
+    mine = np.flatnonzero((lay.knots.var == i) & (lay.knots.pose == 2))
+    assert lay.knots.t[mine] == pytest.approx([1.4])
+    assert np.degrees(quat.angle(lay.knots.v[mine]))[0] == pytest.approx(10.0)
+    # the base layer's poses did not move
+    np.testing.assert_array_equal(doc.pose_t, from_parts(*parse_document(walk_file.read_bytes(), "w")).pose_t)
+    one_line_error(
+        run(["edit-pose", str(added), "--layer", "1", "--pose", "0", "--time", "0.1"]),
+        2,
+        "first and last pose of layer 1",
+    )
+    one_line_error(
+        run(["edit-pose", str(added), "--layer", "1", "--pose", "2", "--time", "2.5"]),
+        2,
+        "pose 2 of layer 1 can move only between its neighbours",
+    )
+    one_line_error(
+        run(["edit-pose", str(added), "--layer", "1", "--pose", "9", "--time", "1"]), 2, "layer 1 has poses 0 to 4"
+    )

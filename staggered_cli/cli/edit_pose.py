@@ -127,10 +127,10 @@ def edit_pose(
             "--joints restricts --exaggerate, --from-bvh and --ease (--rotate and --translate name their own joints)"
         )
     doc = read_document(input_path)
-    from ..ops.layers import check_layer_pose
+    from ..document import check_pose_index
     from ..ops.layers import ease as ease_op
 
-    k = check_layer_pose(doc, layer, pose)
+    k = check_pose_index(doc, pose, layer)
     values = None
     if from_bvh is not None:
         from ..errors import StaggeredError

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import quat
-from ..document import Document
+from ..document import Document, check_pose_index
 from ..errors import DataError, UsageError
 from ..kinds import ops_for
 from ..representation import ROTATION, TRANSLATION, Track, evaluate, pose_arrays
@@ -178,7 +178,7 @@ def edit_pose(
 
     if on not in ("true", "extreme"):
         raise UsageError(f"--on must be 'true' or 'extreme', got {on!r}")
-    k = layers.check_layer_pose(doc, layer, k)
+    k = check_pose_index(doc, k, layer)
     times = doc.poses_of(layer)
     if layer:
 

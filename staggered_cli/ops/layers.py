@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from .. import quat
-from ..document import MAX_LAYERS, Document, check_time_range
+from ..document import MAX_LAYERS, Document, check_pose_index, check_pose_move, check_time_range
 from ..errors import UsageError
 from ..representation import ROTATION, Track, evaluate_at, offset_layer, sample_times
 
@@ -39,21 +39,6 @@ DETAIL_RAMP = 0.1
 
 
 # --- the stack ----------------------------------------------------------------
-
-
-def check_layer(doc: Document, layer: int) -> int:
-    if not 0 <= layer < doc.n_layers:
-        raise UsageError(f"--layer must be from 0 to {doc.n_layers - 1} (the document has {doc.n_layers}), got {layer}")
-    return layer
-
-
-def check_layer_pose(doc: Document, layer: int, k: int) -> int:
-    """``k`` as a pose index of ``layer`` (negative counts from the end)."""
-    n = len(doc.poses_of(check_layer(doc, layer)))
-    if not -n <= k < n:
-        where = "the document has" if layer == 0 else f"layer {layer} has"
-        raise UsageError(f"pose {k} is out of range ({where} poses 0 to {n - 1})")
-    return k % n
 
 
 def layer_times(doc: Document, times: list[float]) -> np.ndarray:
@@ -162,16 +147,8 @@ def apply_offset(doc: Document, layer: int, k: int, deltas: list[np.ndarray | No
 def retime_layer_pose(doc: Document, layer: int, k: int, new_time: float) -> Document:
     """Move pose ``k`` of ``layer`` (>= 1) to ``new_time`` seconds, between its
     neighbours: its offsets move with it."""
-    times = doc.poses_of(layer)
-    K = len(times)
-    if k in (0, K - 1):
-        raise UsageError(f"the first and last pose of layer {layer} pin the clip's ends and cannot be retimed")
-    if not np.isfinite(new_time) or not times[k - 1] < new_time < times[k + 1]:
-        raise UsageError(
-            f"pose {k} of layer {layer} can move only between its neighbours "
-            f"({doc.seconds(times[k - 1])} and {doc.seconds(times[k + 1])}), got {doc.seconds(new_time)}"
-        )
-    new_times = times.copy()
+    check_pose_move(doc, k, new_time, layer)
+    new_times = doc.poses_of(layer).copy()
     new_times[k] = new_time
     tracks = []
     for tr in doc.tracks:
@@ -198,7 +175,7 @@ def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndar
     """
     if not np.isfinite(x) or not 0.0 <= x <= MAX_EASE:
         raise UsageError(f"--ease must be a number from 0 to {MAX_EASE:g}, got {x:g}")
-    k = check_layer_pose(doc, layer, k)
+    k = check_pose_index(doc, k, layer)
     tracks = []
     for n, tr in enumerate(doc.tracks):
         lay = tr.layers[layer]

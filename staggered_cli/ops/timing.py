@@ -14,7 +14,7 @@ import logging
 
 import numpy as np
 
-from ..document import Document, check_pose_index, check_time_range
+from ..document import Document, check_pose_index, check_pose_move, check_time_range
 from ..errors import KnotOrderError, UsageError
 from ..kinds import ROTATION, TRANSLATION
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
@@ -350,15 +350,7 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
     """Move pose ``k`` as a unit to ``new_time`` seconds (paper 5.2): its
     knots keep their refinements; splines and displacement maps follow in
     normalized time."""
-    K = doc.n_poses
-    if k in (0, K - 1):
-        raise UsageError("the first and last pose pin the clip's ends and cannot be retimed")
-    if not np.isfinite(new_time) or not doc.pose_t[k - 1] < new_time < doc.pose_t[k + 1]:
-        lo, hi = doc.pose_t[k - 1], doc.pose_t[k + 1]
-        raise UsageError(
-            f"pose {k} can move only between its neighbours ({doc.seconds(lo)} and {doc.seconds(hi)}), "
-            f"got {doc.seconds(new_time)}"
-        )
+    check_pose_move(doc, k, new_time)
     dt = new_time - doc.pose_t[k]
     tracks = []
     for tr in doc.tracks:
