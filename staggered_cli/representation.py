@@ -402,8 +402,7 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
     for i in range(V):
         kt = knots.t[knots.of(i)]
         t = np.asarray(samples_t[i], dtype=float)
-        seg, u = _locate(kt, t)
-        keep = ~_near_knot(kt, t) & (t > kt[0]) & (t < kt[-1])
+        seg, u, keep = _inside(kt, t)
         gseg.append(seg[keep] + seg_ptr[i])
         us.append(u[keep])
         vals.append(np.asarray(samples_v[i])[keep])
@@ -454,6 +453,14 @@ def _evenly_within_segments(seg: np.ndarray, most: int) -> np.ndarray:
     # sample r is kept when the grid of `most` slots steps at it
     keep = (n <= most) | (rank * most // n != (rank - 1) * most // n) | (rank == 0)
     return np.flatnonzero(keep)
+
+
+def _inside(kt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Segment, normalized time and a mask of the times ``t`` that a fit
+    between knots ``kt`` uses: strictly inside the knots' span and not at a
+    knot (the knot itself is exact)."""
+    seg, u = _locate(kt, t)
+    return seg, u, ~_near_knot(kt, t) & (t > kt[0]) & (t < kt[-1])
 
 
 def _near_knot(kt: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -686,7 +693,7 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     seg_var = knots.seg_var
     refit = np.flatnonzero(kept_old < 0)
     # samples of the segments to refit, per variable
-    samples_t, samples_var, samples_seg = [], [], []
+    samples_t, samples_var, samples_seg, samples_u = [], [], [], []
     for i in range(V):
         mine = refit[seg_var[refit] == i]
         if len(mine) == 0:
@@ -694,24 +701,23 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
         kt = knots.t[knots.of(i)]
         base = sample_times(track, i) if frame_t is None else np.asarray(frame_t, dtype=float)
         st = np.unique(np.concatenate([base, old.knots.t[old.knots.of(i)]]))
-        seg, _ = _locate(kt, st)
+        seg, u, inside = _inside(kt, st)
         gseg = seg + knots.seg_ptr[i]
-        take = np.isin(gseg, mine) & ~_near_knot(kt, st) & (st > kt[0]) & (st < kt[-1])
+        take = inside & np.isin(gseg, mine)
         samples_t.append(st[take])
         samples_var.append(np.full(int(take.sum()), i))
         samples_seg.append(gseg[take])
+        samples_u.append(u[take])
     D = track.dim
     flat_t = np.concatenate(samples_t) if samples_t else np.zeros(0)
     flat_var = np.concatenate(samples_var) if samples_var else np.zeros(0, dtype=int)
     flat_seg = np.concatenate(samples_seg) if samples_seg else np.zeros(0, dtype=int)
+    u = np.concatenate(samples_u) if samples_u else np.zeros(0)
     values = evaluate_at(track, flat_var, flat_t, depth=1) if len(flat_t) else np.zeros((0, D))
     # fit the changed segments together, numbered 0..len(refit)-1
     local = np.full(len(new_first), -1)
     local[refit] = np.arange(len(refit))
     lseg = local[flat_seg]
-    seg_t0 = knots.t[new_first[refit]]
-    seg_t1 = knots.t[new_first[refit] + 1]
-    u = (flat_t - seg_t0[lseg]) / (seg_t1[lseg] - seg_t0[lseg]) if len(flat_t) else np.zeros(0)
     p0, p3 = knots.v[new_first[refit]], knots.v[new_first[refit] + 1]
     a_new, b_new, d_new = _fit_segments(track.kind, p0, p3, lseg, u, values, len(refit))
     tan_a = np.zeros((len(new_first), 3))
@@ -730,8 +736,7 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     carry = new_of_sample >= 0
     carried_seg = new_of_sample[carry]
     carried_s = old.samp_s[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
-    fresh_seg = flat_seg
-    fresh_s = (fresh_seg - knots.seg_ptr[flat_var]) + u
+    fresh_s = (flat_seg - knots.seg_ptr[flat_var]) + u
     all_var = np.concatenate([old_owner[carry], flat_var])
     all_s = np.concatenate([carried_s, fresh_s])
     all_d = np.concatenate([old.samp_d[carry], d_new]) if len(all_var) else np.zeros((0, D))
