@@ -174,7 +174,7 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     Returns the track and the old and new extreme knot times (K, V).
     """
     K = doc.n_poses
-    ext_t, value, _ = pose_arrays(tr, K)
+    ext_t, value, edit = pose_arrays(tr, K)
     refine = ext_t - doc.pose_t[:, None]
     new_refine = refine + delta
     if clamp:
@@ -190,7 +190,6 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     warped = with_knot_times(tr, warped_t)
     # editing knots are measured again where a variable's timing changed; the
     # others keep their values to the bit, so that their segments are not refitted
-    _, _, edit = pose_arrays(tr, K)
     moved = np.any(new_refine != refine, axis=0)
     kk, ii = np.nonzero((new_refine != 0.0) & moved[None, :])
     edit = np.where((new_refine != 0.0)[..., None], edit, value)
