@@ -406,7 +406,10 @@ def _add_terms(*terms: np.ndarray | None) -> np.ndarray | None:
     out = None
     for t in terms:
         if t is not None:
-            out = t if out is None else out + t
+            if out is None:
+                out = t
+            else:  # the terms are fresh products (of _mm): add in place
+                out += t
     return out
 
 
