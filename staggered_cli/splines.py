@@ -269,16 +269,30 @@ _SERIES = 0.05
 
 def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (4, n) quaternions, w first."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
-    )
+    # each row summed left to right in place through one scratch row: the
+    # rounding of the written-out sums, without their temporaries
+    shape = np.broadcast_shapes(a.shape[1:], b.shape[1:])
+    out = np.empty((4, *shape))
+    t = np.empty(shape)
+    for row, ((i, j), *rest) in zip(out, _QMUL_TERMS):
+        np.multiply(a[i], b[j], out=row)
+        for sign, i, j in rest:
+            np.multiply(a[i], b[j], out=t)
+            if sign > 0:
+                row += t
+            else:
+                row -= t
+    return out
+
+
+# the Hamilton product, row by row: (a index, b index) of the first product,
+# then (sign, a index, b index) of each further one, in the written order
+_QMUL_TERMS = (
+    ((0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
+    ((0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
+    ((0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
+    ((0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
+)
 
 
 def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
