@@ -615,11 +615,22 @@ def rotation_eval_at(
     out = np.empty((u.shape[0], 4))
     for lo in range(0, u.shape[0], _CHUNK):
         sg = seg[lo : lo + _CHUNK]
-        # the segments this chunk meets, and each sample's place among them
-        used, idx = np.unique(sg, return_inverse=True)
+        used, idx = _compact(sg)
         q, _ = _curve_t(q0[used].T, a[used].T, b[used].T, q3[used].T, u[lo : lo + _CHUNK], False, idx)
         out[lo : lo + _CHUNK] = q.T
     return quat.normalize(out)
+
+
+def _compact(seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The segments ``used`` that ``seg`` meets (increasing) and each
+    sample's place among them, ``used[idx] == seg`` (np.unique's answer
+    without its import of numpy.ma, about 18 ms a process)."""
+    if seg.size == 0:
+        return seg, seg
+    lo = int(seg.min())
+    mark = np.zeros(int(seg.max()) - lo + 1, dtype=bool)
+    mark[seg - lo] = True
+    return np.flatnonzero(mark) + lo, (np.cumsum(mark) - 1)[seg - lo]
 
 
 def default_rotation_tangents(q0: np.ndarray, q3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
