@@ -31,8 +31,9 @@ from .representation import ROTATION
 
 #: The proxy keeps the variables that make up this share of the body's motion.
 KEEP = 0.999
-#: Rough bound on the number of floats one batch of segment costs gathers.
-_BATCH = 1 << 21
+#: Rough bound on the number of floats one batch of segment costs gathers
+#: (about 1 MB per array: they stay in cache).
+_COST_BATCH = 1 << 17
 #: The same for :func:`window_costs` (float32 values: 1 MB arrays).
 _WINDOW_BATCH = 1 << 18
 
@@ -114,12 +115,16 @@ def proxy_from_dense(variables, w: np.ndarray, keep: float | None = None) -> Pro
 
 def _values_at(x: np.ndarray, var: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Linear interpolation of ``x (T, V, C)`` at fractional frames ``f`` (n,) of variables ``var`` (n,)."""
-    T = x.shape[0]
+    T, V, C = x.shape
     f = np.clip(f, 0.0, T - 1)
     lo = np.minimum(np.floor(f).astype(int), T - 1)
     hi = np.minimum(lo + 1, T - 1)
     w = (f - lo)[:, None]
-    return x[lo, var] * (1.0 - w) + x[hi, var] * w
+    # rows of the (T * V, C) view: a gather along one axis, much faster than x[lo, var]
+    flat = x.reshape(T * V, C)
+    out = np.take(flat, lo * V + var, axis=0) * (1.0 - w)
+    out += np.take(flat, hi * V + var, axis=0) * w
+    return out
 
 
 #: A segment's residual is measured on at most this many samples, evenly
@@ -144,7 +149,9 @@ def segment_costs(proxy: Proxy, var: np.ndarray, a: np.ndarray, b: np.ndarray) -
         return out
     first = np.floor(a + 1e-9) + 1.0
     count = np.maximum(np.ceil(b - 1e-9) - first, 0.0).astype(int)  # frames strictly inside
-    step = max(1, _BATCH // (SAMPLES * proxy.x.shape[2]))
+    # batches whose (n, SAMPLES, C) arrays stay in cache: each segment's cost
+    # is computed alone, so the batch size does not change a bit of it
+    step = max(1, _COST_BATCH // (SAMPLES * proxy.x.shape[2]))
     for s in range(0, n, step):
         sl = slice(s, s + step)
         out[sl] = _costs(proxy, var[sl], a[sl], b[sl], first[sl], count[sl])
@@ -167,7 +174,13 @@ def _costs(proxy, var, a, b, first, count) -> np.ndarray:
     b0, b1, b2, b3 = v**3 * m, 3 * u * v * v * m, 3 * u * u * v * m, u**3 * m
     xa = _values_at(x, var, a)[:, None, :]
     xb = _values_at(x, var, b)[:, None, :]
-    r = (y - b0[..., None] * xa - b3[..., None] * xb) * m[..., None]  # (n, L, C)
+    # r = (y - b0 xa - b3 xb) m and res = r - b1 c1 - b2 c2 (n, L, C), the
+    # same operations in the same order, in place
+    tmp = np.multiply(b0[..., None], xa)
+    r = np.subtract(y, tmp, out=y)
+    np.multiply(b3[..., None], xb, out=tmp)
+    r -= tmp
+    r *= m[..., None]
     g11 = np.sum(b1 * b1, axis=1)
     g12 = np.sum(b1 * b2, axis=1)
     g22 = np.sum(b2 * b2, axis=1)
@@ -181,8 +194,13 @@ def _costs(proxy, var, a, b, first, count) -> np.ndarray:
     c1 = np.where(fitted[:, None], c1, xa[:, 0] + (xb[:, 0] - xa[:, 0]) / 3.0)
     c2 = np.where(fitted[:, None], c2, xa[:, 0] + 2.0 * (xb[:, 0] - xa[:, 0]) / 3.0)
     # the size of the misfit, not its square: world errors add up as lengths
-    res = r - b1[..., None] * c1[:, None, :] - b2[..., None] * c2[:, None, :]
-    cost = np.sum(np.sqrt(np.sum(res * res, axis=2)) * m, axis=1)
+    res = r
+    np.multiply(b1[..., None], c1[:, None, :], out=tmp)
+    res -= tmp
+    np.multiply(b2[..., None], c2[:, None, :], out=tmp)
+    res -= tmp
+    np.multiply(res, res, out=res)
+    cost = np.sum(np.sqrt(np.sum(res, axis=2)) * m, axis=1)
     scale = np.where(dense, 1.0, count / L)
     return cost * scale * proxy.w[var]
 
