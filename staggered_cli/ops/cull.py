@@ -137,6 +137,8 @@ def base_motion(doc: Document) -> tuple[np.ndarray, ...]:
         return hit[1]
     t = doc.frame_times
     dense = tuple(evaluate(tr, t, depth=1) for tr in doc.tracks)
+    for d in dense:  # shared between callers
+        d.flags.writeable = False
     _BASE_MOTION["doc"] = (weakref.ref(doc), dense)
     return dense
 
