@@ -68,11 +68,12 @@ def test_ranking_and_refitting_evaluate_the_motion_once(monkeypatch):
     real = cull.evaluate
     monkeypatch.setattr(cull, "evaluate", lambda *a, **k: calls.append(a[0].kind) or real(*a, **k))
     mask = cull.choose(doc, keep="25%")
+    assert all(not d.flags.writeable for d in cull.base_motion(doc))  # shared: read-only
     culled = cull.keep_poses(doc, mask)
     assert calls == [tr.kind for tr in doc.tracks]
-    assert all(not d.flags.writeable for d in cull.base_motion(doc))  # shared: read-only
     fresh = cull.keep_poses(replace(doc), mask)  # another document: evaluated again
     assert len(calls) == 2 * len(doc.tracks)
+    assert not cull._BASE_MOTION  # let go once the refit used it
     assert document_bytes(*to_parts(culled), "npz") == document_bytes(*to_parts(fresh), "npz")
 
 

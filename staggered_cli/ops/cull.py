@@ -130,7 +130,8 @@ def base_motion(doc: Document) -> tuple[np.ndarray, ...]:
     Ranking the poses (:func:`document_proxy`) and refitting the splines
     around the removed ones (:func:`keep_poses`) both need it, and it is
     most of their time: the last document's is kept (while the document
-    lives) so that ``keep_poses(doc, choose(doc, ...))`` evaluates it once.
+    lives) so that ``keep_poses(doc, choose(doc, ...))`` evaluates it once,
+    and :func:`keep_poses` lets it go (it is as large as the motion).
     """
     hit = _BASE_MOTION.get("doc")
     if hit is not None and hit[0]() is doc:
@@ -230,6 +231,9 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
     for tr, dense in zip(doc.tracks, base_motion(doc), strict=True):
         knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
         tracks.append(restructure(tr, knots, frame_t=doc.frame_times, dense=dense))
+    hit = _BASE_MOTION.get("doc")
+    if hit is not None and hit[0]() is doc:
+        del _BASE_MOTION["doc"]
     signals = dict(doc.signals)
     return reprioritized(
         doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
