@@ -326,6 +326,11 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
             np.multiply(b2[..., None, None], c2[:, None], out=tmp)
             r -= tmp
             np.multiply(r, r, out=r)
-            err = np.sqrt(np.sum(r, axis=3))  # (n, w-1, V)
+            # the sum over the 4 channels written out, in the order np.sum
+            # adds them (one after the other), at a tenth of its time
+            err = r[..., 0] + r[..., 1]
+            err += r[..., 2]
+            err += r[..., 3]
+            err = np.sqrt(err, out=err)  # (n, w-1, V)
             out[i, w - 1] = np.einsum("ntv,v->n", err, weight)
     return out

@@ -99,3 +99,51 @@ def test_variable_weights_take_the_middle_frame_alone_to_the_bit(name):
     mid = placement._middle_frame_positions(fresh)
     assert "_world" not in fresh.__dict__  # the clip's world transforms were not computed for it
     np.testing.assert_array_equal(mid, fresh.world()[1][fresh.n_frames // 2])
+
+
+def _plain_window_costs(proxy: placement.Proxy, frames: np.ndarray, width: int) -> np.ndarray:
+    """The window costs as first written (np.sum over the channels)."""
+    x = proxy.x[frames]
+    G = len(frames)
+    out = np.full((G, width), np.inf)
+    node_f = frames.astype(np.float32)
+    weight = proxy.w.astype(np.float32)
+    for w in range(1, min(width, G - 1) + 1):
+        n = G - w
+        out[:n, w - 1] = 0.0
+        if w == 1:
+            continue
+        i = np.arange(n)
+        t = i[:, None] + np.arange(1, w)[None, :]
+        fa, fb = node_f[i], node_f[i + w]
+        u = (node_f[t] - fa[:, None]) / (fb - fa)[:, None]
+        v = 1.0 - u
+        b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
+        xa, xb = x[i], x[i + w]
+        r = x[t] - b0[..., None, None] * xa[:, None] - b3[..., None, None] * xb[:, None]
+        g11 = np.sum(b1 * b1, axis=1)[:, None, None]
+        g12 = np.sum(b1 * b2, axis=1)[:, None, None]
+        g22 = np.sum(b2 * b2, axis=1)[:, None, None]
+        h1 = np.einsum("nt,ntvc->nvc", b1, r)
+        h2 = np.einsum("nt,ntvc->nvc", b2, r)
+        det = g11 * g22 - g12 * g12
+        if w - 1 >= 2:
+            c1 = (g22 * h1 - g12 * h2) / det
+            c2 = (g11 * h2 - g12 * h1) / det
+        else:
+            c1 = xa + (xb - xa) / 3.0
+            c2 = xa + 2.0 * (xb - xa) / 3.0
+        r = r - b1[..., None, None] * c1[:, None] - b2[..., None, None] * c2[:, None]
+        err = np.sqrt(np.sum(r * r, axis=3))
+        out[i, w - 1] = np.einsum("ntv,v->n", err, weight)
+    return out
+
+
+def test_window_costs_are_the_plain_formula_to_the_bit():
+    """The node-to-node costs extract places poses with, on cmu_02_01's proxy every 4 frames."""
+    doc = dev_document("cmu_02_01_walk.bvh")
+    proxy, _ = cull.document_proxy(doc)
+    frames = np.arange(0, proxy.n_frames, 4)
+    want = _plain_window_costs(proxy, frames, 12)
+    assert np.isfinite(want[:-12]).all() and (want[:-12, 1:] > 0).all()
+    np.testing.assert_array_equal(placement.window_costs(proxy, frames, 12), want)
