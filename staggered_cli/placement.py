@@ -305,9 +305,11 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
             b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
             xa, xb = x[i], x[i + w]  # (n, V, C)
             r = x[t]  # (n, w-1, V, C), a copy: becomes the residual
-            tmp = b0[..., None, None] * xa[:, None]
+            # (the products by einsum, twice as fast as broadcasting here:
+            # one multiplication per value all the same)
+            tmp = np.einsum("nt,nvc->ntvc", b0, xa)
             r -= tmp
-            np.multiply(b3[..., None, None], xb[:, None], out=tmp)
+            np.einsum("nt,nvc->ntvc", b3, xb, out=tmp)
             r -= tmp
             g11 = np.sum(b1 * b1, axis=1)[:, None, None]
             g12 = np.sum(b1 * b2, axis=1)[:, None, None]
@@ -321,9 +323,9 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
             else:  # one inner node: the default (straight) controls
                 c1 = xa + (xb - xa) / 3.0
                 c2 = xa + 2.0 * (xb - xa) / 3.0
-            np.multiply(b1[..., None, None], c1[:, None], out=tmp)
+            np.einsum("nt,nvc->ntvc", b1, c1, out=tmp)
             r -= tmp
-            np.multiply(b2[..., None, None], c2[:, None], out=tmp)
+            np.einsum("nt,nvc->ntvc", b2, c2, out=tmp)
             r -= tmp
             np.multiply(r, r, out=r)
             # the sum over the 4 channels written out, in the order np.sum
