@@ -74,6 +74,11 @@ def test_ranking_and_refitting_evaluate_the_motion_once(monkeypatch):
     fresh = cull.keep_poses(replace(doc), mask)  # another document: evaluated again
     assert len(calls) == 2 * len(doc.tracks)
     assert not cull._BASE_MOTION  # let go once the refit used it
+    other = replace(doc)
+    cull.choose(other, keep="25%")
+    assert cull._BASE_MOTION
+    del other  # and when its document goes
+    assert not cull._BASE_MOTION
     assert document_bytes(*to_parts(culled), "npz") == document_bytes(*to_parts(fresh), "npz")
 
 

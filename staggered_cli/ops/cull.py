@@ -131,7 +131,8 @@ def base_motion(doc: Document) -> tuple[np.ndarray, ...]:
     around the removed ones (:func:`keep_poses`) both need it, and it is
     most of their time: the last document's is kept (while the document
     lives) so that ``keep_poses(doc, choose(doc, ...))`` evaluates it once,
-    and :func:`keep_poses` lets it go (it is as large as the motion).
+    and :func:`keep_poses` lets it go, as does the document's end (it is as
+    large as the motion).
     """
     hit = _BASE_MOTION.get("doc")
     if hit is not None and hit[0]() is doc:
@@ -140,12 +141,19 @@ def base_motion(doc: Document) -> tuple[np.ndarray, ...]:
     dense = tuple(evaluate(tr, t, depth=1) for tr in doc.tracks)
     for d in dense:  # shared between callers
         d.flags.writeable = False
-    _BASE_MOTION["doc"] = (weakref.ref(doc), dense)
+    _BASE_MOTION["doc"] = (weakref.ref(doc, _forget_base_motion), dense)
     return dense
 
 
 #: The document :func:`base_motion` last evaluated (a weak reference) and its motion.
 _BASE_MOTION: dict = {}
+
+
+def _forget_base_motion(ref: weakref.ref) -> None:
+    """Drop the cached motion of the document behind ``ref`` (it is gone, or culled)."""
+    hit = _BASE_MOTION.get("doc")
+    if hit is not None and hit[0] is ref:
+        del _BASE_MOTION["doc"]
 
 
 def document_proxy(doc: Document) -> tuple[placement.Proxy, np.ndarray]:
@@ -233,7 +241,7 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
         tracks.append(restructure(tr, knots, frame_t=doc.frame_times, dense=dense))
     hit = _BASE_MOTION.get("doc")
     if hit is not None and hit[0]() is doc:
-        del _BASE_MOTION["doc"]
+        _forget_base_motion(hit[0])
     signals = dict(doc.signals)
     return reprioritized(
         doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
