@@ -732,9 +732,10 @@ def restructure(
         values = evaluate_at(track, flat_var, flat_t, depth=1) if len(flat_t) else np.zeros((0, D))
     else:
         # the same numbers: evaluate and evaluate_at compute each value alike
-        values = np.empty((len(flat_t), D))
+        # rows of the (T * V, D) view (a knot time between frames takes row 0, then its own value)
         on_frame = flat_frame >= 0
-        values[on_frame] = dense[flat_frame[on_frame], flat_var[on_frame]]
+        rows = np.where(on_frame, flat_frame * V + flat_var, 0)
+        values = np.take(dense.reshape(-1, D), rows, axis=0)
         off = np.flatnonzero(~on_frame)
         if len(off):
             values[off] = evaluate_at(track, flat_var[off], flat_t[off], depth=1)
