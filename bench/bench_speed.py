@@ -15,6 +15,11 @@ One line per goal: the measured value, the goal, PASS or FAIL.
 * memory: the peak resident memory (``ru_maxrss``) of each of those
   children against the raw float64 channel bytes (frames x channels x 8)
   (goal: <= 6x raw + 150 MB);
+* steps: in-process ``succession --joint @left-arm --offset 0.03 --power
+  1.5 --clamp`` (goal: <= 0.1 s) and ``cull --keep 25%`` (``choose`` +
+  ``keep_poses``; goal: <= 0.12 s) on cmu_01_01's extracted document, CPU
+  time, the best of at least 3 runs in a child process, each on a document
+  read afresh;
 * library: ``staggered batch --jobs 2`` over six copies (links) of the 10
   dev BVH files, in source frames per second, for extract + bake (goal:
   >= 20,000) and with ``cull --keep 30%`` plus a succession down the left
@@ -60,6 +65,7 @@ LINEAR_GOAL = 34.0  # for 32x the frames
 MEMORY_FACTOR, MEMORY_EXTRA_MB = 6.0, 150.0
 HOUR_FRAMES, HOUR_GOAL_MB = 432_000, 2048.0  # one hour at 120 Hz, in under 2 GB
 BATCH_GOAL, BATCH_STEPS_GOAL = 20_000.0, 10_000.0
+SUCCESSION_GOAL, CULL_GOAL = 0.1, 0.12  # seconds in-process
 #: The in-process floor (loadtxt + savetxt of cmu_01_01, one core) when the
 #: issue set the batch goals: they are scaled by this run's floor over it.
 FLOOR_RATE_THEN = 46_500.0
@@ -159,6 +165,32 @@ def _child(stage: str, src: Path, dst: Path) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def child_steps(doc_path: str, repeats: int) -> dict:
+    """CPU seconds, the best of ``repeats``, of the in-process succession
+    down the left arm and ``cull --keep 25%`` on the document ``doc_path``,
+    each run on the document read afresh (reading is not timed)."""
+    import logging
+
+    from staggered_cli.cli.common import read_document
+    from staggered_cli.ops import cull, timing
+
+    logging.disable(logging.WARNING)  # the succession's warning about steep warps
+    steps = {
+        "succession": lambda d: timing.succession(d, 0.03, 1.5, joint="@left-arm", clamp=True),
+        "cull": lambda d: cull.keep_poses(d, cull.choose(d, keep="25%")),
+    }
+    out = {}
+    for name, step in steps.items():
+        best = float("inf")
+        for _ in range(repeats):
+            doc = read_document(doc_path)
+            cpu = time.process_time()
+            step(doc)
+            best = min(best, time.process_time() - cpu)
+        out[name] = best
+    return out
+
+
 # --- the goals ---------------------------------------------------------------------------------
 
 
@@ -242,6 +274,32 @@ def scaling(tmp: Path, factors: list[int], repeats: int) -> list[bool]:
                 )
             )
     return ok
+
+
+def steps(tmp: Path, repeats: int) -> list[bool]:
+    doc = tmp / "steps.stag"
+    subprocess.run([STAGGERED, "-q", "extract", str(MOCAP / CLIP), "-o", str(doc), "--force"], check=True)
+    runs = max(3, repeats)
+    proc = subprocess.run(
+        [sys.executable, __file__, "--child-steps", str(doc), str(runs)], capture_output=True, text=True, check=False
+    )
+    if proc.returncode != 0:
+        raise SystemExit(f"in-process steps failed: {proc.stderr.strip()[-400:]}")
+    cpu = json.loads(proc.stdout.strip().splitlines()[-1])
+    return [
+        _line(
+            "in-process succession down an arm",
+            f"{cpu['succession'] * 1000:.0f} ms CPU (best of {runs})",
+            f"<= {SUCCESSION_GOAL:g} s",
+            cpu["succession"] <= SUCCESSION_GOAL,
+        ),
+        _line(
+            "in-process cull --keep 25%",
+            f"{cpu['cull'] * 1000:.0f} ms CPU (best of {runs})",
+            f"<= {CULL_GOAL:g} s",
+            cpu["cull"] <= CULL_GOAL,
+        ),
+    ]
 
 
 def _floor_rate(tmp: Path, repeats: int) -> float:
@@ -339,9 +397,13 @@ def main(argv: list[str] | None = None) -> int:
         "--hour", action="store_true", help="also extract and bake a generated hour at 120 Hz (minutes, GBs)"
     )
     parser.add_argument("--child", nargs=3, metavar=("STAGE", "SRC", "DST"), help=argparse.SUPPRESS)
+    parser.add_argument("--child-steps", nargs=2, metavar=("DOC", "REPEATS"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(child(*args.child)))
+        return 0
+    if args.child_steps:
+        print(json.dumps(child_steps(args.child_steps[0], int(args.child_steps[1]))))
         return 0
     if not (MOCAP / CLIP).exists():
         print(f"skipped: {MOCAP / CLIP} is missing")
@@ -356,6 +418,7 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(tmp_name)
         ok += whole_process(tmp, repeats)
         ok += scaling(tmp, [1, 8] if args.quick else [1, 8, 32], repeats)
+        ok += steps(tmp, repeats)
         ok += library(tmp, 2 if args.quick else 6, repeats)
         if args.hour:
             ok += hour(tmp)

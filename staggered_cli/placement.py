@@ -26,13 +26,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .motion import BvhMotion, MarkerMotion
+from .motion import BvhMotion, MarkerMotion, local_rotations_from_channels, local_translations_from_channels
 from .representation import ROTATION
+from .skeleton import forward_kinematics
 
 #: The proxy keeps the variables that make up this share of the body's motion.
 KEEP = 0.999
-#: Rough bound on the number of floats one batch of segment costs gathers.
-_BATCH = 1 << 21
+#: Rough bound on the number of floats one batch of segment costs gathers
+#: (about 1 MB per array: they stay in cache).
+_COST_BATCH = 1 << 17
 #: The same for :func:`window_costs` (float32 values: 1 MB arrays).
 _WINDOW_BATCH = 1 << 18
 
@@ -69,7 +71,7 @@ def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
     if not isinstance(motion, BvhMotion):
         return np.ones(sum(len(names) for _, names, _, _ in variables))
     sk = motion.skeleton
-    pos = motion.world()[1][motion.n_frames // 2]  # (J, 3)
+    pos = _middle_frame_positions(motion)  # (J, 3)
     out = []
     for kind, _names, targets, _ in variables:
         for j in np.asarray(targets, dtype=int):
@@ -79,6 +81,20 @@ def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
             else:
                 out.append(float(len(below)))
     return np.asarray(out, dtype=float)
+
+
+def _middle_frame_positions(motion: BvhMotion) -> np.ndarray:
+    """World joint positions (J, 3) at the middle frame, ``motion.world()[1][T // 2]``
+    to the bit, from that frame alone: cull's document has no world
+    transforms at hand, and those of every frame took 40 ms of cmu_01_01's.
+    Kinematics go frame by frame, and the sign of a quaternion (which
+    unrolling over the clip picks) does not change a bit of a position: each
+    term of a rotated vector is a product of two of its components."""
+    mid = motion.n_frames // 2
+    frame = motion.channels[mid : mid + 1]
+    rot = local_rotations_from_channels(motion.skeleton, frame)
+    trans = local_translations_from_channels(motion.skeleton, frame)
+    return forward_kinematics(motion.skeleton, rot, trans)[1][0]
 
 
 def proxy_from_dense(variables, w: np.ndarray, keep: float | None = None) -> Proxy:
@@ -122,6 +138,19 @@ def _values_at(x: np.ndarray, var: np.ndarray, f: np.ndarray) -> np.ndarray:
     return x[lo, var] * (1.0 - w) + x[hi, var] * w
 
 
+def _channel_values_at(xc: np.ndarray, V: int, var: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """:func:`_values_at` (the same numbers) on ``xc`` (C, T * V), the
+    proxy's values channel first: (C, n)."""
+    T = xc.shape[1] // V
+    f = np.clip(f, 0.0, T - 1)
+    lo = np.minimum(np.floor(f).astype(int), T - 1)
+    hi = np.minimum(lo + 1, T - 1)
+    w = f - lo
+    out = np.take(xc, lo * V + var, axis=1) * (1.0 - w)
+    out += np.take(xc, hi * V + var, axis=1) * w
+    return out
+
+
 #: A segment's residual is measured on at most this many samples, evenly
 #: spread in its normalized time and scaled to its frame count: placement
 #: compares thousands of trial segments, and 16 samples tell a cubic's misfit
@@ -144,47 +173,84 @@ def segment_costs(proxy: Proxy, var: np.ndarray, a: np.ndarray, b: np.ndarray) -
         return out
     first = np.floor(a + 1e-9) + 1.0
     count = np.maximum(np.ceil(b - 1e-9) - first, 0.0).astype(int)  # frames strictly inside
-    step = max(1, _BATCH // (SAMPLES * proxy.x.shape[2]))
+    T, V, C = proxy.x.shape
+    xc = np.ascontiguousarray(proxy.x.reshape(T * V, C).T)
+    # batches whose (C, SAMPLES, n) arrays stay in cache: each segment's cost
+    # is computed alone, so the batch size does not change a bit of it
+    step = max(1, _COST_BATCH // (SAMPLES * C))
     for s in range(0, n, step):
         sl = slice(s, s + step)
-        out[sl] = _costs(proxy, var[sl], a[sl], b[sl], first[sl], count[sl])
+        out[sl] = _costs(xc, proxy.w, var[sl], a[sl], b[sl], first[sl], count[sl])
     return out
 
 
-def _costs(proxy, var, a, b, first, count) -> np.ndarray:
-    x = proxy.x
+def _costs(xc, weight, var, a, b, first, count) -> np.ndarray:
+    """The costs of :func:`segment_costs` on ``xc`` (C, T * V).
+
+    The values are laid out (C, L, n), so that numpy's loops run along the
+    segments rather than along 4 channels, and every sum adds its terms in
+    the order the (n, L, C) layout it replaced did, so no bit changes: the
+    sums over the samples of a product (``einsum('nl,nlc->nc')``) and over
+    the channels add one term after the other, the sums over the samples
+    of the Gram entries and of the misfit run on C-ordered (n, L) arrays.
+    """
+    V = len(weight)
     L = SAMPLES
+    n = len(var)
     j = np.arange(L)[None, :]
     dense = count <= L
     # frames themselves where there are few; else evenly spread fractional frames
     spread = a[:, None] + (b - a)[:, None] * (j + 0.5) / L
     frames = np.where(dense[:, None], first[:, None] + j, spread)
     inside = np.where(dense[:, None], j < count[:, None], True)
-    y = _values_at(x, np.repeat(var, L), frames.ravel()).reshape(len(var), L, -1)
     u = np.where(inside, (frames - a[:, None]) / (b - a)[:, None], 0.0)
     m = inside.astype(float)
     v = 1.0 - u
-    b0, b1, b2, b3 = v**3 * m, 3 * u * v * v * m, 3 * u * u * v * m, u**3 * m
-    xa = _values_at(x, var, a)[:, None, :]
-    xb = _values_at(x, var, b)[:, None, :]
-    r = (y - b0[..., None] * xa - b3[..., None] * xb) * m[..., None]  # (n, L, C)
+    b0, b1, b2, b3 = v**3 * m, 3 * u * v * v * m, 3 * u * u * v * m, u**3 * m  # (n, L)
     g11 = np.sum(b1 * b1, axis=1)
     g12 = np.sum(b1 * b2, axis=1)
     g22 = np.sum(b2 * b2, axis=1)
-    h1 = np.einsum("nl,nlc->nc", b1, r)
-    h2 = np.einsum("nl,nlc->nc", b2, r)
+    b0t, b1t, b2t, b3t, mt = (np.ascontiguousarray(q.T) for q in (b0, b1, b2, b3, m))  # (L, n)
+    C = xc.shape[0]
+    r = _channel_values_at(xc, V, np.tile(var, L), frames.T.ravel()).reshape(C, L, n)
+    xa = _channel_values_at(xc, V, var, a)[:, None, :]  # (C, 1, n)
+    xb = _channel_values_at(xc, V, var, b)[:, None, :]
+    # r = (y - b0 xa - b3 xb) m, in place
+    tmp = np.multiply(b0t, xa)
+    r -= tmp
+    np.multiply(b3t, xb, out=tmp)
+    r -= tmp
+    r *= mt
+    np.multiply(b1t, r, out=tmp)
+    h1 = _sum_in_order(tmp)  # (C, n)
+    np.multiply(b2t, r, out=tmp)
+    h2 = _sum_in_order(tmp)
     det = g11 * g22 - g12 * g12
     fitted = (count >= 2) & (det > 1e-12 * np.maximum(g11 * g22, 1e-300))
     safe = np.where(fitted, det, 1.0)
-    c1 = (g22[:, None] * h1 - g12[:, None] * h2) / safe[:, None]
-    c2 = (g11[:, None] * h2 - g12[:, None] * h1) / safe[:, None]
-    c1 = np.where(fitted[:, None], c1, xa[:, 0] + (xb[:, 0] - xa[:, 0]) / 3.0)
-    c2 = np.where(fitted[:, None], c2, xa[:, 0] + 2.0 * (xb[:, 0] - xa[:, 0]) / 3.0)
-    # the size of the misfit, not its square: world errors add up as lengths
-    res = r - b1[..., None] * c1[:, None, :] - b2[..., None] * c2[:, None, :]
-    cost = np.sum(np.sqrt(np.sum(res * res, axis=2)) * m, axis=1)
+    c1 = (g22 * h1 - g12 * h2) / safe
+    c2 = (g11 * h2 - g12 * h1) / safe
+    c1 = np.where(fitted, c1, xa[:, 0] + (xb[:, 0] - xa[:, 0]) / 3.0)
+    c2 = np.where(fitted, c2, xa[:, 0] + 2.0 * (xb[:, 0] - xa[:, 0]) / 3.0)
+    # res = r - b1 c1 - b2 c2, in place; the size of the misfit, not its
+    # square: world errors add up as lengths
+    np.multiply(b1t, c1[:, None, :], out=tmp)
+    r -= tmp
+    np.multiply(b2t, c2[:, None, :], out=tmp)
+    r -= tmp
+    r *= r
+    length = np.sqrt(_sum_in_order(r, axis=0))  # (L, n)
+    cost = np.sum(np.multiply(length.T, m, out=np.empty((n, L))), axis=1)
     scale = np.where(dense, 1.0, count / L)
-    return cost * scale * proxy.w[var]
+    return cost * scale * weight[var]
+
+
+def _sum_in_order(x: np.ndarray, axis: int = 1) -> np.ndarray:
+    """The sum of ``x`` along ``axis`` (0 or 1) as ``((0 + x_0) + x_1) + ...``."""
+    out = np.zeros(x.shape[:axis] + x.shape[axis + 1 :])
+    for k in range(x.shape[axis]):
+        out += x[k] if axis == 0 else x[:, k]
+    return out
 
 
 def span_costs(proxy: Proxy, knots: np.ndarray) -> np.ndarray:
@@ -239,9 +305,11 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
             b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
             xa, xb = x[i], x[i + w]  # (n, V, C)
             r = x[t]  # (n, w-1, V, C), a copy: becomes the residual
-            tmp = b0[..., None, None] * xa[:, None]
+            # (the products by einsum, twice as fast as broadcasting here:
+            # one multiplication per value all the same)
+            tmp = np.einsum("nt,nvc->ntvc", b0, xa)
             r -= tmp
-            np.multiply(b3[..., None, None], xb[:, None], out=tmp)
+            np.einsum("nt,nvc->ntvc", b3, xb, out=tmp)
             r -= tmp
             g11 = np.sum(b1 * b1, axis=1)[:, None, None]
             g12 = np.sum(b1 * b2, axis=1)[:, None, None]
@@ -255,11 +323,16 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
             else:  # one inner node: the default (straight) controls
                 c1 = xa + (xb - xa) / 3.0
                 c2 = xa + 2.0 * (xb - xa) / 3.0
-            np.multiply(b1[..., None, None], c1[:, None], out=tmp)
+            np.einsum("nt,nvc->ntvc", b1, c1, out=tmp)
             r -= tmp
-            np.multiply(b2[..., None, None], c2[:, None], out=tmp)
+            np.einsum("nt,nvc->ntvc", b2, c2, out=tmp)
             r -= tmp
             np.multiply(r, r, out=r)
-            err = np.sqrt(np.sum(r, axis=3))  # (n, w-1, V)
+            # the sum over the 4 channels written out, in the order np.sum
+            # adds them (one after the other), at a tenth of its time
+            err = r[..., 0] + r[..., 1]
+            err += r[..., 2]
+            err += r[..., 3]
+            err = np.sqrt(err, out=err)  # (n, w-1, V)
             out[i, w - 1] = np.einsum("ntv,v->n", err, weight)
     return out

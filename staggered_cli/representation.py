@@ -671,7 +671,9 @@ def with_knot_times(track: Track, knot_t: np.ndarray, layer: int = 0) -> Track:
     return track.with_layer(layer, replace(lay, knots=lay.knots.with_times(knot_t)))
 
 
-def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None) -> Track:
+def restructure(
+    track: Track, knots: Knots, *, frame_t: np.ndarray | None = None, dense: np.ndarray | None = None
+) -> Track:
     """Refit the base layer of ``track`` to new knots, keeping the motion it has now.
 
     Only segments that changed are refitted: a new segment whose two knots
@@ -680,10 +682,15 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     there (``--ease``, ``detail``) stays exactly.  The other segments are
     fitted again and their displacement maps measured from the base layer's
     motion as it was (SPEC invariant 2), sampled at the source frame times
-    ``frame_t`` (where the motion is baked, so it stays exact there even after
-    a retiming moved the old samples between frames) plus the old knot times
-    inside them; without ``frame_t``, at the current sample times.  The
-    layers above the base are kept as they are.
+    ``frame_t`` (increasing; where the motion is baked, so it stays exact
+    there even after a retiming moved the old samples between frames) plus
+    the old knot times inside them; without ``frame_t``, at the current
+    sample times.  ``dense`` (T, V, D), when given with ``frame_t``, is that
+    motion at ``frame_t`` (``evaluate(track, frame_t, depth=1)``, which a
+    caller may already have): it is read instead of evaluated again, and only
+    the knot times between frames are evaluated.  Only the variables with a
+    refitted segment are sampled at all.  The layers above the base are kept
+    as they are.
     """
     check_knot_order(knots.ptr, knots.t, track.names)
     old = track.base
@@ -692,28 +699,46 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     new_first = knots.seg_first
     seg_var = knots.seg_var
     refit = np.flatnonzero(kept_old < 0)
-    # samples of the segments to refit, per variable
-    samples_t, samples_var, samples_seg, samples_u = [], [], [], []
-    for i in range(V):
-        mine = refit[seg_var[refit] == i]
-        if len(mine) == 0:
-            continue
+    is_refit = kept_old < 0
+    ft = None if frame_t is None else np.asarray(frame_t, dtype=float)
+    if dense is not None and (ft is None or dense.shape[:2] != (len(ft), V)):
+        raise ValueError(f"dense must be (T, V, D) values at frame_t, got {np.shape(dense)}")
+    # samples of the segments to refit, per variable: (time, frame index or -1)
+    samples_t, samples_frame, samples_var, samples_seg, samples_u = [], [], [], [], []
+    # (not np.unique, which imports numpy.ma: 15 ms at a command's first call)
+    for i in np.flatnonzero(np.bincount(seg_var[refit], minlength=V)):
         kt = knots.t[knots.of(i)]
-        base = sample_times(track, i) if frame_t is None else np.asarray(frame_t, dtype=float)
-        st = np.unique(np.concatenate([base, old.knots.t[old.knots.of(i)]]))
+        old_kt = old.knots.t[old.knots.of(i)]
+        if ft is None:
+            st = np.unique(np.concatenate([sample_times(track, i), old_kt]))
+            frame = np.full(len(st), -1)
+        else:
+            st, frame = _with_knot_times(ft, old_kt)
         seg, u, inside = _inside(kt, st)
         gseg = seg + knots.seg_ptr[i]
-        take = inside & np.isin(gseg, mine)
+        take = inside & is_refit[gseg]
         samples_t.append(st[take])
+        samples_frame.append(frame[take])
         samples_var.append(np.full(int(take.sum()), i))
         samples_seg.append(gseg[take])
         samples_u.append(u[take])
     D = track.dim
     flat_t = np.concatenate(samples_t) if samples_t else np.zeros(0)
+    flat_frame = np.concatenate(samples_frame) if samples_frame else np.zeros(0, dtype=int)
     flat_var = np.concatenate(samples_var) if samples_var else np.zeros(0, dtype=int)
     flat_seg = np.concatenate(samples_seg) if samples_seg else np.zeros(0, dtype=int)
     u = np.concatenate(samples_u) if samples_u else np.zeros(0)
-    values = evaluate_at(track, flat_var, flat_t, depth=1) if len(flat_t) else np.zeros((0, D))
+    if dense is None:
+        values = evaluate_at(track, flat_var, flat_t, depth=1) if len(flat_t) else np.zeros((0, D))
+    else:
+        # the same numbers: evaluate and evaluate_at compute each value alike
+        # rows of the (T * V, D) view (a knot time between frames takes row 0, then its own value)
+        on_frame = flat_frame >= 0
+        rows = np.where(on_frame, flat_frame * V + flat_var, 0)
+        values = np.take(dense.reshape(-1, D), rows, axis=0)
+        off = np.flatnonzero(~on_frame)
+        if len(off):
+            values[off] = evaluate_at(track, flat_var[off], flat_t[off], depth=1)
     # fit the changed segments together, numbered 0..len(refit)-1
     local = np.full(len(new_first), -1)
     local[refit] = np.arange(len(refit))
@@ -740,10 +765,25 @@ def restructure(track: Track, knots: Knots, *, frame_t: np.ndarray | None = None
     all_var = np.concatenate([old_owner[carry], flat_var])
     all_s = np.concatenate([carried_s, fresh_s])
     all_d = np.concatenate([old.samp_d[carry], d_new]) if len(all_var) else np.zeros((0, D))
-    o = np.lexsort((all_s, all_var))
+    # in order of variable and knot coordinate: each segment's samples are
+    # already in order, and all carried or all fresh, so ordering by segment
+    # (stably) is enough
+    o = np.argsort(np.concatenate([carried_seg, flat_seg]), kind="stable")
     samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(all_var, minlength=V))]).astype(int)
     layer = Layer(knots, tan_a, tan_b, samp_ptr, all_s[o], all_d[o])
     return track.with_base(layer)
+
+
+def _with_knot_times(frame_t: np.ndarray, knot_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The increasing times ``frame_t`` (T,) and ``knot_t`` (n,) together, in
+    order and each once (``np.unique`` of both), and the frame index (-1 for
+    a knot time between frames) of each."""
+    pos = np.searchsorted(frame_t, knot_t)
+    at = np.minimum(pos, len(frame_t) - 1)
+    new = (pos >= len(frame_t)) | (frame_t[at] != knot_t) if len(frame_t) else np.ones(len(knot_t), dtype=bool)
+    st = np.insert(frame_t, pos[new], knot_t[new])
+    frame = np.insert(np.arange(len(frame_t)), pos[new], -1)
+    return st, frame
 
 
 def _unchanged_segments(old: Knots, new: Knots) -> np.ndarray:

@@ -9,6 +9,8 @@ from staggered_cli.io.document import from_parts, to_parts
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops.bake import bake
 
+from .conftest import dev_document, dev_motion
+
 
 def test_adding_a_pose_inside_a_staggered_span_makes_room(bandai_run, caplog):
     """1.1179 s lies between pose 6's editing and extreme knots of several
@@ -51,3 +53,39 @@ def test_priorities_follow_the_poses_that_remain(cmu_walk):
     f = np.rint(culled.pose_t[1:-1] / doc.frame_time).astype(int)
     np.testing.assert_allclose(culled.priority[1:-1], P[f] * (culled.pose_t[2:] - culled.pose_t[:-2]))
     assert np.isinf(culled.priority[[0, -1]]).all()
+
+
+def test_ranking_and_refitting_evaluate_the_motion_once(monkeypatch):
+    """choose and keep_poses both need the base layer's motion at the frame
+    times: keep_poses(doc, choose(doc)) evaluates it once per track, and
+    the document is the one a fresh keep_poses makes, byte for byte."""
+    from dataclasses import replace
+
+    from staggered_cli.io.document import document_bytes
+
+    doc = replace(dev_document("cmu_02_01_walk.bvh"))  # a document no other test has culled
+    calls = []
+    real = cull.evaluate
+    monkeypatch.setattr(cull, "evaluate", lambda *a, **k: calls.append(a[0].kind) or real(*a, **k))
+    mask = cull.choose(doc, keep="25%")
+    assert all(not d.flags.writeable for d in cull.base_motion(doc))  # shared: read-only
+    culled = cull.keep_poses(doc, mask)
+    assert calls == [tr.kind for tr in doc.tracks]
+    fresh = cull.keep_poses(replace(doc), mask)  # another document: evaluated again
+    assert len(calls) == 2 * len(doc.tracks)
+    assert not cull._BASE_MOTION  # let go once the refit used it
+    other = replace(doc)
+    cull.choose(other, keep="25%")
+    assert cull._BASE_MOTION
+    del other  # and when its document goes
+    assert not cull._BASE_MOTION
+    assert document_bytes(*to_parts(culled), "npz") == document_bytes(*to_parts(fresh), "npz")
+
+
+def test_the_motion_of_another_document_is_not_reused():
+    """After ranking one document, culling an edited one refits to the edited motion."""
+    _, doc = dev_motion("bandai2_run_normal_001.bvh"), dev_document("bandai2_run_normal_001.bvh")
+    edited = timing.succession(doc, 0.02, 1.0, joint="UpperArm_L", clamp=True)
+    mask = cull.choose(doc, keep="50%")
+    culled = cull.keep_poses(edited, mask)
+    assert np.abs(bake(culled, ik=False).channels - bake(edited, ik=False).channels).max() < 1e-6

@@ -94,3 +94,38 @@ def test_parts_round_trip_exactly():
     assert m2 == manifest
     for k in arrays:
         np.testing.assert_array_equal(a2[k], arrays[k])
+
+
+def test_restructure_reads_the_motion_it_is_given_to_the_bit():
+    """With ``dense`` (the base motion at the frame times, as cull has it)
+    restructure makes the same layer as when it evaluates the motion itself;
+    a ``dense`` of another shape is refused."""
+    from staggered_cli.ops import cull
+
+    from .conftest import dev_document
+
+    doc = dev_document("cmu_02_01_walk.bvh")
+    mask = cull.choose(doc, keep="30%")
+    new_index = np.cumsum(mask) - 1
+    for tr in doc.tracks:
+        knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
+        dense = evaluate(tr, doc.frame_times, depth=1)
+        given = restructure(tr, knots, frame_t=doc.frame_times, dense=dense).base
+        own = restructure(tr, knots, frame_t=doc.frame_times).base
+        for name in ("tan_a", "tan_b", "samp_ptr", "samp_s", "samp_d"):
+            np.testing.assert_array_equal(getattr(given, name), getattr(own, name), err_msg=name)
+        with pytest.raises(ValueError, match="dense must be"):
+            restructure(tr, knots, frame_t=doc.frame_times, dense=dense[1:])
+
+
+def test_frame_and_knot_times_merge_as_unique_does():
+    from staggered_cli.representation import _with_knot_times
+
+    frame_t = np.arange(10) * 0.1
+    for knot_t in ([], [-0.05, 0.0], [0.1, 0.15, 0.16, 0.3], [0.85, 0.9, 0.95, 1.2], frame_t[[2, 5]]):
+        knot_t = np.asarray(knot_t, dtype=float)
+        st, frame = _with_knot_times(frame_t, knot_t)
+        np.testing.assert_array_equal(st, np.unique(np.concatenate([frame_t, knot_t])))
+        on = frame >= 0
+        np.testing.assert_array_equal(st[on], frame_t[frame[on]])
+        assert on.sum() == len(frame_t)

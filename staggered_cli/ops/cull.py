@@ -8,6 +8,7 @@ change (SPEC invariant 2).
 from __future__ import annotations
 
 import logging
+import weakref
 
 import numpy as np
 
@@ -122,13 +123,44 @@ def choose(
     return best_subset(doc, mask, n, contact)
 
 
+def base_motion(doc: Document) -> tuple[np.ndarray, ...]:
+    """The motion (T, V, D) of each track's base layer at the frame times
+    (``evaluate(track, doc.frame_times, depth=1)``).
+
+    Ranking the poses (:func:`document_proxy`) and refitting the splines
+    around the removed ones (:func:`keep_poses`) both need it, and it is
+    most of their time: the last document's is kept (while the document
+    lives) so that ``keep_poses(doc, choose(doc, ...))`` evaluates it once,
+    and :func:`keep_poses` lets it go, as does the document's end (it is as
+    large as the motion).
+    """
+    hit = _BASE_MOTION.get("doc")
+    if hit is not None and hit[0]() is doc:
+        return hit[1]
+    t = doc.frame_times
+    dense = tuple(evaluate(tr, t, depth=1) for tr in doc.tracks)
+    for d in dense:  # shared between callers
+        d.flags.writeable = False
+    _BASE_MOTION["doc"] = (weakref.ref(doc, _forget_base_motion), dense)
+    return dense
+
+
+#: The document :func:`base_motion` last evaluated (a weak reference) and its motion.
+_BASE_MOTION: dict = {}
+
+
+def _forget_base_motion(ref: weakref.ref) -> None:
+    """Drop the cached motion of the document behind ``ref`` (it is gone, or culled)."""
+    hit = _BASE_MOTION.get("doc")
+    if hit is not None and hit[0] is ref:
+        del _BASE_MOTION["doc"]
+
+
 def document_proxy(doc: Document) -> tuple[placement.Proxy, np.ndarray]:
     """The proxy of the motion a document bakes to (without the contact
     layer), and the extreme knot frames (K, V) of the proxy's variables."""
-    t = doc.frame_times
     variables, ext = [], []
-    for tr in doc.tracks:
-        dense = evaluate(tr, t, depth=1)
+    for tr, dense in zip(doc.tracks, base_motion(doc), strict=True):
         if tr.kind == ROTATION:
             dense = quat.unroll(dense, axis=0)
         variables.append((tr.kind, tr.names, tr.targets, dense))
@@ -204,9 +236,12 @@ def keep_poses(doc: Document, mask: np.ndarray) -> Document:
         return doc
     new_index = np.cumsum(mask) - 1
     tracks = []
-    for tr in doc.tracks:
+    for tr, dense in zip(doc.tracks, base_motion(doc), strict=True):
         knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
-        tracks.append(restructure(tr, knots, frame_t=doc.frame_times))
+        tracks.append(restructure(tr, knots, frame_t=doc.frame_times, dense=dense))
+    hit = _BASE_MOTION.get("doc")
+    if hit is not None and hit[0]() is doc:
+        _forget_base_motion(hit[0])
     signals = dict(doc.signals)
     return reprioritized(
         doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
