@@ -80,8 +80,14 @@ def _r_scale(d: np.ndarray, w) -> np.ndarray:
 def _r_interpolate(a: np.ndarray, b: np.ndarray, u) -> np.ndarray:
     """Slerp; ``u == 0`` gives ``a`` exactly (no round off at the knots)."""
     u = np.asarray(u, dtype=float)
-    out = quat.slerp(a, b, u)
-    return np.where((u == 0.0)[..., None], np.asarray(a, dtype=float), out)
+    a = np.asarray(a, dtype=float)
+    shape = np.broadcast_shapes(a.shape, np.shape(b), u.shape + (4,))
+    out = np.array(np.broadcast_to(a, shape))
+    move = np.broadcast_to(u != 0.0, shape[:-1])
+    if np.any(move):  # on a bake at the source's frames, none do
+        ab = np.broadcast_to(a, shape)[move], np.broadcast_to(b, shape)[move]
+        out[move] = quat.slerp(*ab, np.broadcast_to(u, shape[:-1])[move])
+    return out
 
 
 TRANSLATION_OPS = KindOps(

@@ -261,6 +261,10 @@ def fit_translation_tangents(
 # in chunks of about _CHUNK so that the rows stay in cache.
 
 _CHUNK = 16384
+# Rows at least this long are computed in place, row by row (the same
+# operations in the same order, so the same bits): below it the extra numpy
+# calls cost more than the temporaries they save.
+_ROWS_IN_PLACE = 2048
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])[:, None]
 # Below this argument the closed forms of the SO(3) coefficient functions lose
 # digits to cancellation; their Taylor series (error < 1e-13) take over.
@@ -269,8 +273,19 @@ _SERIES = 0.05
 
 def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (4, n) quaternions, w first."""
-    # each row summed left to right in place through one scratch row: the
-    # rounding of the written-out sums, without their temporaries
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    if a.shape[-1] < _ROWS_IN_PLACE:
+        return np.stack(
+            [
+                aw * bw - ax * bx - ay * by - az * bz,
+                aw * bx + ax * bw + ay * bz - az * by,
+                aw * by - ax * bz + ay * bw + az * bx,
+                aw * bz + ax * by - ay * bx + az * bw,
+            ]
+        )
+    # long rows: each summed left to right in place through one scratch row,
+    # the same rounding without the temporaries
     shape = np.broadcast_shapes(a.shape[1:], b.shape[1:])
     out = np.empty((4, *shape))
     t = np.empty(shape)
@@ -371,10 +386,13 @@ def _pmatrix(p: tuple, w: np.ndarray, t2: np.ndarray) -> np.ndarray:
     pw = p2 * w
     d = p0 - p2 * t2
     k = p1 * w  # kx, ky, kz
-    m = np.empty((3, 3, w.shape[-1]))
-    for i in range(3):
-        for j in range(3):
-            np.multiply(pw[i], w[j], out=m[i, j])
+    if w.shape[-1] < _ROWS_IN_PLACE:
+        m = pw[:, None] * w[None]
+    else:
+        m = np.empty((3, 3, w.shape[-1]))
+        for i in range(3):
+            for j in range(3):
+                np.multiply(pw[i], w[j], out=m[i, j])
     m[0, 0] += d
     m[1, 1] += d
     m[2, 2] += d
@@ -394,6 +412,8 @@ def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     with its rounding): faster than einsum on rows of thousands of samples.
     """
     n = a.shape[-1]
+    if n < _ROWS_IN_PLACE:
+        return np.einsum("ijn,jkn->ikn", a, b, order="C")
     out = np.empty((3, b.shape[1], n))
     t = np.empty(n)
     for i in range(3):
