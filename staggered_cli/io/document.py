@@ -148,8 +148,9 @@ def _canonical(arrays: dict[str, np.ndarray]) -> list[tuple[str, str, np.ndarray
     return out
 
 
-def _npy_bytes(arr: np.ndarray) -> bytes:
-    """``.npy`` version 1.0 bytes of a little-endian C-contiguous array.
+def _npy_parts(arr: np.ndarray) -> list:
+    """``.npy`` version 1.0 bytes of a little-endian C-contiguous array, as
+    its header and a view of its data (not copied).
 
     The header is written here rather than by NumPy so that the bytes do not
     depend on the NumPy version.
@@ -158,15 +159,67 @@ def _npy_bytes(arr: np.ndarray) -> bytes:
     # magic (6) + version (2) + length (2) + header + padding + '\n' is a multiple of 64
     pad = -(10 + len(header) + 1) % 64
     header_bytes = (header + " " * pad + "\n").encode("latin1")
-    return _NPY_MAGIC + b"\x01\x00" + len(header_bytes).to_bytes(2, "little") + header_bytes + arr.tobytes()
+    head = _NPY_MAGIC + b"\x01\x00" + len(header_bytes).to_bytes(2, "little") + header_bytes
+    if arr.size == 0:
+        return [head]
+    return [head, memoryview(arr.reshape(-1)).cast("B")]
 
 
-def _zip_member(zf: zipfile.ZipFile, name: str, data: bytes) -> None:
+def _zip_member(zf: zipfile.ZipFile, name: str, parts: list) -> None:
+    """Store the member ``name`` whose bytes are the concatenation of ``parts``
+    (bytes-like), written through without joining them: the same bytes as
+    ``writestr`` of the joined data (which sets the size first, then writes)."""
     info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
     info.compress_type = zipfile.ZIP_STORED
     info.create_system = 3  # unix, so that the mode bits below mean the same everywhere
     info.external_attr = 0o100644 << 16
-    zf.writestr(info, data)
+    info.file_size = sum(memoryview(p).nbytes for p in parts)
+    with zf.open(info, mode="w") as dest:
+        for part in parts:
+            dest.write(part)
+
+
+class _Pieces:
+    """A seekable sink that keeps what is written as a list of pieces
+    without copying them (a zip member's data is a view of its array).
+
+    ``zipfile`` writes forward, and overwrites only a member's local header
+    once its CRC is known, with a header of the same length: that is the one
+    rewrite supported."""
+
+    def __init__(self) -> None:
+        self.pieces: list = []
+        self._starts: dict[int, int] = {}  # offset -> index of the piece starting there
+        self._end = 0
+        self._pos = 0
+
+    def tell(self) -> int:
+        return self._pos
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        self._pos = {0: pos, 1: self._pos + pos, 2: self._end + pos}[whence]
+        return self._pos
+
+    def write(self, data) -> int:
+        n = memoryview(data).nbytes
+        if self._pos == self._end:
+            self._starts[self._pos] = len(self.pieces)
+            self.pieces.append(data if n > _COPY_BELOW else bytes(data))
+            self._end += n
+        else:
+            i = self._starts.get(self._pos)
+            if i is None or memoryview(self.pieces[i]).nbytes != n:
+                raise ValueError("only a whole piece can be rewritten")
+            self.pieces[i] = bytes(data)
+        self._pos += n
+        return n
+
+    def flush(self) -> None:
+        pass
+
+
+#: Pieces smaller than this are copied (headers): larger ones are kept as given.
+_COPY_BELOW = 1 << 16
 
 
 def _format_value(dname: str) -> Any:
@@ -213,18 +266,25 @@ def document_bytes(manifest: dict, arrays: dict[str, np.ndarray], fmt: str) -> b
     The same input always gives the same bytes.  Raises ``ValueError`` or
     ``TypeError`` for content a document cannot hold (a bug in the caller).
     """
+    return b"".join(document_pieces(manifest, arrays, fmt))
+
+
+def document_pieces(manifest: dict, arrays: dict[str, np.ndarray], fmt: str) -> list:
+    """The bytes of :func:`document_bytes` as a list of bytes-like pieces to
+    write one after the other: an NPZ's large pieces are views of the arrays,
+    so that writing a long clip's document takes no second copy of it."""
     items = _canonical(arrays)
     if fmt == "npz":
         index = {name: {"dtype": dname, "shape": list(arr.shape)} for name, dname, arr in items}
         envelope = {"arrays": index, "format": FORMAT_NAME, "manifest": manifest, "version": FORMAT_VERSION}
-        members = {MANIFEST_MEMBER: (_dump_manifest(envelope, 1) + "\n").encode("utf-8")}
+        members = {MANIFEST_MEMBER: [(_dump_manifest(envelope, 1) + "\n").encode("utf-8")]}
         for name, _, arr in items:
-            members[name + ".npy"] = _npy_bytes(arr)
-        buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
+            members[name + ".npy"] = _npy_parts(arr)
+        sink = _Pieces()
+        with zipfile.ZipFile(sink, "w", allowZip64=True) as zf:  # type: ignore[arg-type]
             for member in sorted(members):
                 _zip_member(zf, member, members[member])
-        return buf.getvalue()
+        return sink.pieces
     if fmt == "json":
         entries = []
         for name, dname, arr in items:
@@ -245,7 +305,7 @@ def document_bytes(manifest: dict, arrays: dict[str, np.ndarray], fmt: str) -> b
             f' "version": {FORMAT_VERSION}\n'
             "}\n"
         )
-        return text.encode("utf-8")
+        return [text.encode("utf-8")]
     raise ValueError(f"unknown document format {fmt!r} (npz or json)")
 
 
