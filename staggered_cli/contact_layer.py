@@ -121,7 +121,7 @@ def joint_layer(
     if not candidates:
         return rot
     _, wp = forward_kinematics(sk, rot, tr)
-    src_wp = src.world()[1]
+    src_wp = src.world_positions()
     size = src.figure_height()  # cached with the clip's world positions
 
     tolerance = _tolerance(size, same_rate)

@@ -499,7 +499,6 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
     breaks = np.zeros(max(T - 1, 0), dtype=bool)
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
-        wr, wp = motion.world()  # computed once per clip
         height = motion.figure_height()
         rot_vals = next((d for k, _, _, d in variables if k == ROTATION), np.zeros((T, 0, 4)))
         breaks, rot_jumps = rotation_steps(rot_vals)
