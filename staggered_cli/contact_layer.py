@@ -114,9 +114,16 @@ def joint_layer(
     if same_rate:
         # cheap first pass without forward kinematics: a constraint whose
         # chain keeps the source's local values over its window is untouched
-        changed = (1.0 - np.abs(np.sum(rot * src.local_rotations(), axis=-1)) > 1e-12) | np.any(
-            np.abs(tr - src.local_translations()) > 1e-9, axis=-1
-        )
+        # (in blocks of frames: no temporaries of the whole clip)
+        src_rot, src_tr = src.local_rotations(), src.local_translations()
+        changed = np.empty(rot.shape[:2], dtype=bool)
+        step = max(1, (1 << 16) // max(sk.n_joints, 1))
+        for lo in range(0, len(rot), step):
+            b = slice(lo, lo + step)
+            changed[b] = (1.0 - np.abs(np.sum(rot[b] * src_rot[b], axis=-1)) > 1e-12) | np.any(
+                np.abs(tr[b] - src_tr[b]) > 1e-9, axis=-1
+            )
+        del src_rot, src_tr
         candidates = [c for c in candidates if c.pin or _chain_changed(sk, changed, t, c, blend)]
     if not candidates:
         return rot

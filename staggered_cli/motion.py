@@ -128,6 +128,12 @@ class BvhMotion:
         """(T, J, 4) local rotations, w first, each joint's track unrolled (read-only)."""
         return self._local_rotations
 
+    def release_local(self) -> None:
+        """Forget the cached local rotations (:meth:`local_rotations` computes
+        them again if asked): 32 bytes per joint and frame, that bake frees
+        once it has compared them with the baked pose."""
+        self.__dict__.pop("_local_rotations", None)
+
     def local_translations(self) -> np.ndarray:
         """(T, J, 3) local translations: position channels where present, else offsets (read-only)."""
         return _frozen(local_translations_from_channels(self.skeleton, self.channels))
@@ -294,7 +300,11 @@ def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> n
             for col, axis in zip(cols, order, strict=True):
                 q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[:, col])))
             rot[:, j] = q
-    return quat.unroll(rot, axis=0)
+    # each joint's track on its own (the same signs as all at once): no
+    # temporaries of the whole clip
+    for j in range(skeleton.n_joints):
+        rot[:, j] = quat.unroll(rot[:, j], axis=0)
+    return rot
 
 
 def local_translations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:

@@ -161,6 +161,17 @@ def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
     :class:`~staggered_cli.motion.MarkerMotion`, or a document as
     ``(manifest, arrays)``.  Errors are ``DataError`` naming the file.
     """
+    zipped = files.open_zip(path)
+    if zipped is not None:  # an NPZ document, read from the file: no copy of it in memory
+        from ..io.document import parse_document
+
+        name = files.display_name(path)
+        with zipped:
+            try:
+                return parse_document(zipped, name)
+            except StaggeredError as err:
+                err.with_source(name)
+                raise
     data, name = read_input(path)
     try:
         kind = detect_kind(data)

@@ -462,7 +462,7 @@ _ZIP_ERRORS = (
 )
 
 
-def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+def _parse_npz(data, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     try:
         return _read_npz(data, name)
     except DataError:
@@ -472,8 +472,14 @@ def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
         raise _fail(name, f"truncated or corrupt NPZ document ({reason})") from None
 
 
-def _read_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
-    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+def _read_npz(data, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """``data``: the bytes, or a seekable binary file, of an NPZ document."""
+    if isinstance(data, bytes | bytearray | memoryview):
+        size, source = len(data), io.BytesIO(data)
+    else:
+        size, source = data.seek(0, 2), data
+        data.seek(0)
+    with zipfile.ZipFile(source) as zf:
         infos = zf.infolist()
         if len(infos) > MAX_ARRAYS + 1:
             raise _fail(name, f"document has {len(infos)} members (at most {MAX_ARRAYS + 1})")
@@ -493,7 +499,7 @@ def _read_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
                 raise _fail(
                     name, f"member {info.filename!r} declares {info.file_size:,} bytes, over the limit of {limit:,}"
                 )
-            if info.compress_size > len(data) or (
+            if info.compress_size > size or (
                 info.compress_type == zipfile.ZIP_STORED and info.compress_size != info.file_size
             ):
                 raise _fail(name, f"corrupt NPZ document (member {info.filename!r} declares sizes the file lacks)")
@@ -564,9 +570,11 @@ def _read_npy_member(
                 raise _fail(name, f"{where}: truncated data")
             got += n
         fp.read(1)  # reach the end of the member, where zipfile checks its CRC
-    arr = np.frombuffer(raw, dtype=ndtype)
+    arr = np.frombuffer(raw, dtype=ndtype)  # writable: a view of the bytearray, not a copy
     arr = arr.reshape(shape[::-1]).T if fortran else arr.reshape(shape)
-    return np.array(arr, dtype=dtype, order="C")
+    if fortran or arr.dtype != dtype:
+        return np.array(arr, dtype=dtype, order="C")
+    return arr
 
 
 def _array_from_json(aname: str, entry: dict, dtype: np.dtype, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -614,15 +622,18 @@ def _parse_json(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     return env["manifest"], arrays
 
 
-def parse_document(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+def parse_document(data, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     """``(manifest, arrays)`` from the bytes of a document (npz or json,
-    detected by content).
+    detected by content), or from a seekable binary file of an NPZ one
+    (read in place: the arrays are all it allocates).
 
     ``name`` is used in error messages.  Raises :class:`DataError` with a
     one-line reason for anything that is not a valid document of a version
     this code reads.  Arrays come back writable, C-contiguous and in native
     byte order.
     """
+    if not isinstance(data, bytes | bytearray | memoryview):
+        return _parse_npz(data, name)
     if data[:4] in _ZIP_MAGICS:
         return _parse_npz(data, name)
     if is_document(data):

@@ -68,6 +68,31 @@ def _os_reason(err: OSError) -> str:
     return err.strerror or type(err).__name__
 
 
+_ZIP_MAGIC = b"PK\x03\x04"
+
+
+def open_zip(path: str, limit: int = MAX_INPUT_BYTES):
+    """An open binary file of ``path`` when it is a regular file of at most
+    ``limit`` bytes that begins like a zip (an NPZ document), to be read in
+    place rather than copied into memory whole; else None (then read it with
+    :func:`read_bytes`, which names what is wrong)."""
+    if path == STDIO:
+        return None
+    try:
+        f = open(path, "rb")
+    except OSError:
+        return None
+    try:
+        st = os.fstat(f.fileno())
+        if stat.S_ISREG(st.st_mode) and st.st_size <= limit and f.read(4) == _ZIP_MAGIC:
+            f.seek(0)
+            return f
+    except OSError:
+        pass
+    f.close()
+    return None
+
+
 def read_bytes(path: str, limit: int = MAX_INPUT_BYTES, probe=None, probe_bytes: int = 0) -> tuple[bytes, str]:
     """The whole content of ``path`` and the name to show for it.
 

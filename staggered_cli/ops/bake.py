@@ -49,12 +49,18 @@ def bake(
         rot, tr = local_pose(doc, t, layers)
         if ik and layers == "all" and doc.constraints:
             rot = contact_layer.joint_layer(doc, rot, tr, t, ik_blend, same_rate)
+            src.release_local()  # the comparison's cache: 32 bytes a joint and frame
         ref = reference_channels(doc, t)
         channels = channels_from_local(src.skeleton, rot, tr, ref)
+        del rot, tr
         if same_rate:
             # where the motion is the source's to rounding noise, write the
-            # source's own numbers (its -0 and its last digit included)
-            channels = np.where(np.abs(channels - ref) < _SAME_VALUE, ref, channels)
+            # source's own numbers (its -0 and its last digit included);
+            # in place, since channels is this function's own
+            near = channels - ref
+            np.abs(near, out=near)
+            np.copyto(channels, ref, where=near < _SAME_VALUE)
+            del near
         return src.with_channels(channels, None if same_rate else frame_time)
     src = doc.source
     pts = marker_points(doc, t, layers)

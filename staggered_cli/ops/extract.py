@@ -495,6 +495,9 @@ def extract(
         gate = signals.tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     variables = dense_variables(motion)
     proxy = placement.proxy_from_dense(variables, placement.variable_weights(motion, variables))
+    del variables
+    if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
+        motion.release_world()
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
     stride = max(1, int(round(rate / PLACEMENT_RATE)))
@@ -515,11 +518,7 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed)
     refine = refine_f * float(motion.frame_time)
-    # the fit below needs neither the placement's copies of the variables nor
-    # world positions: free them first (the largest arrays of a long clip)
-    del variables, proxy
-    if isinstance(motion, BvhMotion):
-        motion.release_world()
+    del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
     parameters = {
         "smoothing": smoothing,
@@ -533,7 +532,7 @@ def extract(
         "contact_pulse": signals.DEFAULT_PULSE,
     }
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
-    return from_motion(
+    doc = from_motion(
         motion,
         pose_t,
         refine,
@@ -544,3 +543,6 @@ def extract(
         signals=sigs,
         parameters=parameters,
     )
+    if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
+        motion.release_local()
+    return doc
