@@ -289,7 +289,10 @@ def position_columns(skeleton: Skeleton) -> list[tuple[int, list[int]]]:
     return out
 
 
-def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray, unroll: bool = True) -> np.ndarray:
+    """Local rotations (T, J, 4) of channel values (T, C), w first; each
+    joint's track unrolled (without ``unroll``, each frame's own sign: for
+    sign-blind uses, which may then take any block of frames)."""
     T = channels.shape[0]
     rot = quat.identity((T, skeleton.n_joints))
     for j, cols, order in rotation_columns(skeleton):
@@ -302,7 +305,7 @@ def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> n
             rot[:, j] = q
     # each joint's track on its own (the same signs as all at once): no
     # temporaries of the whole clip
-    for j in range(skeleton.n_joints):
+    for j in range(skeleton.n_joints if unroll else 0):
         rot[:, j] = quat.unroll(rot[:, j], axis=0)
     return rot
 

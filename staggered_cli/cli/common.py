@@ -36,9 +36,9 @@ def write_motion(motion, output: str, force: bool) -> None:
     from ..motion import BvhMotion
 
     if isinstance(motion, BvhMotion):
-        from ..io.bvh import bvh_bytes
+        from ..io.bvh import bvh_pieces
 
-        emit(output, bvh_bytes(motion), force)
+        emit(output, bvh_pieces(motion), force)
     else:
         from ..io.c3d import c3d_bytes
 

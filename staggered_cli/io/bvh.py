@@ -501,7 +501,8 @@ def check_writable(motion: BvhMotion) -> None:
         if values.size and not np.all(np.abs(values) <= MAX_MAGNITUDE):
             raise DataError(f"cannot write the BVH: a {what} is beyond ±{MAX_MAGNITUDE:g} (the BVH reader's limit)")
     ch = motion.channels
-    if ch.size and not np.all(np.abs(ch) <= MAX_MAGNITUDE):
+    rows = max(1, (1 << 18) // max(ch.shape[1], 1))  # a block at a time: no temporaries of the clip
+    if ch.size and not all(np.all(np.abs(ch[lo : lo + rows]) <= MAX_MAGNITUDE) for lo in range(0, len(ch), rows)):
         bad = int(np.flatnonzero(~(np.abs(ch.ravel()) <= MAX_MAGNITUDE))[0])
         frame, col = divmod(bad, ch.shape[1])
         raise DataError(
@@ -515,7 +516,13 @@ def check_writable(motion: BvhMotion) -> None:
 
 
 def bvh_bytes(motion: BvhMotion) -> bytes:
-    """The BVH file of ``motion`` as bytes.
+    """The BVH file of ``motion`` as bytes (see :func:`bvh_pieces`)."""
+    return b"".join(bvh_pieces(motion))
+
+
+def bvh_pieces(motion: BvhMotion) -> list:
+    """The BVH file of ``motion`` as bytes-like pieces to write one after the
+    other (what is kept of the source's text is a view of it, not a copy).
 
     With ``motion.source`` (the file it was read from, same skeleton) the
     source's text is kept: the header as written (only the ``Frames:`` and
@@ -577,12 +584,12 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     ]
     header = "\n".join(out) + "\n"
     if ch.shape[0] == 0:
-        return header.encode("utf-8")
+        return [header.encode("utf-8")]
     row = " ".join([motion.number_format] * ch.shape[1]) + "\n"
     # one % over the whole block: the fastest pure-Python formatting
     flat = ch.ravel().tolist()
     body = (row * ch.shape[0]) % tuple(flat)
-    return (header + body).encode("utf-8")
+    return [(header + body).encode("utf-8")]
 
 
 _LINE = re.compile(rb"[^\r\n]*(?:\r\n|\r|\n|$)")
@@ -601,7 +608,7 @@ def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
     )
 
 
-def _in_source_layout(motion: BvhMotion) -> bytes | None:
+def _in_source_layout(motion: BvhMotion) -> list | None:
     """``motion`` written in the text of ``motion.source`` (see :func:`bvh_bytes`),
     or None when the source is not a BVH of the same skeleton."""
     data = motion.source
@@ -632,13 +639,13 @@ def _in_source_layout(motion: BvhMotion) -> bytes | None:
     lines[2] = ftime.group(1) + text.encode("ascii") + ftime.group(3)
     head = bom + data[:at] + b"".join(lines)
     if T == 0:
-        return head
+        return [head]
     kept = _kept_numbers(data, pos, ch, motion.number_format)
     if kept is None:  # another frame count (a resampled bake): the source's line ending
         newline = lines[2][len(lines[2].rstrip(b"\r\n")) :] or b"\n"
         row = " ".join([motion.number_format] * C) + newline.decode("ascii")
-        return head + ((row * T) % tuple(ch.ravel().tolist())).encode("ascii")
-    return b"".join([head, *kept])
+        return [head + ((row * T) % tuple(ch.ravel().tolist())).encode("ascii")]
+    return [head, *kept]
 
 
 #: The writer rewrites the source's MOTION block this many bytes at a time:
@@ -664,7 +671,7 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
         if values is not None:
             rows = np.any(values != channels, axis=1)
             if not rows.any():
-                return [data[start:]]
+                return [memoryview(data)[start:]]  # the source's own block: a view, not a copy
             lines = data.count(b"\n", start) + (not data.endswith(b"\n"))
             if lines == T:
                 changed_rows = rows
@@ -734,4 +741,4 @@ def write_bvh(path: str | os.PathLike, motion: BvhMotion, force: bool = True) ->
     """Write ``motion`` to ``path`` atomically (temp file, then rename)."""
     from .files import write_atomic
 
-    write_atomic(os.fspath(path), bvh_bytes(motion), force=force)
+    write_atomic(os.fspath(path), bvh_pieces(motion), force=force)

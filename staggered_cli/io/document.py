@@ -865,7 +865,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")
             need(
-                bool(np.all(np.abs(ch) <= _MAX_MAGNITUDE)),
+                _rows_all(ch, lambda b: np.abs(b) <= _MAX_MAGNITUDE),
                 f"source.channels are not all finite numbers within ±{_MAX_MAGNITUDE:g}",
             )
             text = source.frame_time_text
@@ -883,7 +883,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 f"source.points has shape {pts.shape}, expected ({frames}, {len(labels)}, 3)",
             )
             need(
-                not bool(np.any(np.abs(pts) > _MAX_MAGNITUDE)),
+                _rows_all(pts, lambda b: ~(np.abs(b) > _MAX_MAGNITUDE)),
                 f"source.points hold values that are infinite or beyond ±{_MAX_MAGNITUDE:g}",
             )
             raw = arr("source.c3d", 1, "u")
@@ -995,6 +995,24 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     )
 
 
+def _rows_all(a: np.ndarray, test) -> bool:
+    """Whether the elementwise (or row-wise) ``test`` holds everywhere in
+    ``a``, judged a block of rows at a time: no temporaries of a long clip's
+    arrays."""
+    if a.ndim == 0:
+        return bool(test(a))
+    rows = max(1, _CHECK_BLOCK // max(int(np.prod(a.shape[1:])), 1))
+    return all(bool(np.all(test(a[lo : lo + rows]))) for lo in range(0, len(a), rows))
+
+
+def _unit_rows(q: np.ndarray) -> np.ndarray:
+    return np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-6
+
+
+#: Values checked at once by :func:`_rows_all`.
+_CHECK_BLOCK = 1 << 18
+
+
 def _safe_format(fmt: str) -> bool:
     return re.fullmatch(r"%\.\d{1,2}[fg]", fmt) is not None
 
@@ -1036,7 +1054,7 @@ def _checked_signals(arrays: dict, frames: int, n_vars: int, need) -> dict[str, 
             continue
         name = key.split(".", 1)[1]
         need(isinstance(val, np.ndarray) and val.dtype.kind in "fiub", f"array {key!r} is not numeric")
-        need(bool(np.all(np.isfinite(val))), f"array {key!r} holds values that are not finite")
+        need(_rows_all(val, np.isfinite), f"array {key!r} holds values that are not finite")
         if name in _SIGNAL_SHAPES:
             dims = {"T": frames, "V": n_vars}
             want = tuple(dims[d] for d in _SIGNAL_SHAPES[name])
@@ -1125,8 +1143,8 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
         (samp_s, "samples"),
         (samp_d, "displacements"),
     ):
-        need(bool(np.all(np.isfinite(a))), f"{p}{label} are not all finite")
-        need(bool(np.all(np.abs(a) <= _MAX_FITTED)), f"{p}{label} are beyond ±{_MAX_FITTED:g}")
+        need(_rows_all(a, np.isfinite), f"{p}{label} are not all finite")
+        need(_rows_all(a, lambda b: np.abs(b) <= _MAX_FITTED), f"{p}{label} are beyond ±{_MAX_FITTED:g}")
     need(
         bool(np.all((knot_t >= pose_t[0] - 1e-6) & (knot_t <= pose_t[-1] + 1e-6))),
         f"{p}knot times lie outside the clip",
@@ -1139,11 +1157,11 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
     need(bool(np.all(np.diff(samp_s)[same_var] >= 0)), f"{p}a variable's samples are not in order")
     if kind == ROTATION:
         need(
-            bool(np.all(np.abs(np.linalg.norm(knot_v, axis=1) - 1) < 1e-6)),
+            _rows_all(knot_v, _unit_rows),
             f"{p}knot rotations are not unit quaternions",
         )
         need(
-            bool(np.all(np.abs(np.linalg.norm(samp_d, axis=1) - 1) < 1e-6)),
+            _rows_all(samp_d, _unit_rows),
             f"{p}displacement rotations are not unit quaternions",
         )
     try:

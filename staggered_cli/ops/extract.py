@@ -474,11 +474,15 @@ def extract(
     if problem is not None:
         raise DataError(f"frame rate {rate:g} Hz {problem}")
 
-    ev = signals.local_evidence(motion, smoothing)
     joints = contact_detection.contact_joints(motion, contact_joints)
     constraints = contact_detection.detect_contacts(
         motion, joints, min_duration=min_contact, tolerance=contact_tolerance
     )
+    variables = dense_variables(motion)
+    weights = placement.variable_weights(motion, variables)
+    if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
+        motion.release_world()
+    ev = signals.local_evidence(motion, smoothing)
     events = contact_events(constraints, T, rate, ev.breaks)
     boundaries = np.unique(np.array([f for _, f in events], dtype=int))
     contact = signals.contact_pulses(boundaries, T, rate, signals.DEFAULT_PULSE)
@@ -493,11 +497,8 @@ def extract(
     gate = np.ones(T, dtype=bool)
     if significance > 0:
         gate = signals.tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
-    variables = dense_variables(motion)
-    proxy = placement.proxy_from_dense(variables, placement.variable_weights(motion, variables))
+    proxy = placement.proxy_from_dense(variables, weights)
     del variables
-    if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
-        motion.release_world()
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
     stride = max(1, int(round(rate / PLACEMENT_RATE)))
