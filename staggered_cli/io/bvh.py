@@ -667,9 +667,9 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
         # the reader's fast parse: when no number changed (a round trip) the
         # block is the source's, and no token need be looked at; with one
         # frame a line and no blank line, only the lines that changed are
-        values = _fast_values(data, start, T, C)
-        if values is not None:
-            rows = np.any(values != channels, axis=1)
+        found = _changed_rows(data, start, channels)
+        if found is not None:
+            rows, values = found
             if not rows.any():
                 return [memoryview(data)[start:]]  # the source's own block: a view, not a copy
             lines = data.count(b"\n", start) + (not data.endswith(b"\n"))
@@ -680,6 +680,49 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
         if kept is not None:
             return kept
     return _replace_tokens(data, start, channels, fmt)
+
+
+def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """Which frames (T,) of ``channels`` (T, C) differ from the numbers of the
+    MOTION block ``data[start:]``, and the block's values (T, C) if any does
+    (``channels`` itself in the frames that do not: equal there); None when
+    the block does not parse as T lines of C numbers.
+
+    The block is parsed like :func:`_fast_values`, a few MB of lines at a
+    time, so that a round trip (nothing changed) keeps no parsed copy of
+    the clip.
+    """
+    T, C = channels.shape
+    rows = np.zeros(T, dtype=bool)
+    values = None
+    n, pos, end = 0, start, len(data)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Input line", UserWarning)
+        warnings.filterwarnings("ignore", ".*no data", UserWarning)  # a piece of blank lines
+        while pos < end:
+            cut = data.find(b"\n", min(pos + _PARSE_CHUNK_BYTES, end - 1))
+            stop = end if cut < 0 else cut + 1
+            try:
+                vals = np.loadtxt(io.BytesIO(data[pos:stop]), dtype=float, ndmin=2, comments=None)
+            except ValueError:
+                return None
+            pos = stop
+            if vals.size == 0:
+                continue
+            if vals.shape[1] != C or n + len(vals) > T:
+                return None
+            differ = np.any(vals != channels[n : n + len(vals)], axis=1)
+            if differ.any():
+                if values is None:
+                    values = np.array(channels, dtype=float, copy=True)
+                values[n : n + len(vals)] = vals
+                rows[n : n + len(vals)] = differ
+            n += len(vals)
+    return (rows, values) if n == T else None
+
+
+#: Bytes of the MOTION block :func:`_changed_rows` parses at once.
+_PARSE_CHUNK_BYTES = 1 << 22
 
 
 def _replace_tokens(

@@ -1151,10 +1151,14 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
     )
     need(bool(np.all((knot_pose >= 0) & (knot_pose < K))), f"{p}knots name poses that do not exist")
     nseg = np.diff(knot_ptr) - 1
-    owner = np.repeat(np.arange(V), np.diff(samp_ptr))
-    need(bool(np.all((samp_s >= 0) & (samp_s <= nseg[owner]))), f"{p}samples lie outside their variable's segments")
-    same_var = owner[1:] == owner[:-1]
-    need(bool(np.all(np.diff(samp_s)[same_var] >= 0)), f"{p}a variable's samples are not in order")
+    # a variable at a time: no per-sample temporaries of a long clip
+    inside, ordered = True, True
+    for i in range(V):
+        s_i = samp_s[samp_ptr[i] : samp_ptr[i + 1]]
+        inside = inside and bool(np.all((s_i >= 0) & (s_i <= nseg[i])))
+        ordered = ordered and bool(np.all(np.diff(s_i) >= 0))
+    need(inside, f"{p}samples lie outside their variable's segments")
+    need(ordered, f"{p}a variable's samples are not in order")
     if kind == ROTATION:
         need(
             _rows_all(knot_v, _unit_rows),
