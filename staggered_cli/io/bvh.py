@@ -270,11 +270,17 @@ def _split_lines(data: bytes, start: int, count: int) -> tuple[list[bytes], int]
 
 def _chunks(data: bytes, start: int, size: int = _CHUNK_BYTES):
     """``data[start:]`` in pieces of about ``size`` bytes ending at a line end."""
+    for pos, end in _chunk_ranges(data, start, size):
+        yield data[pos:end]
+
+
+def _chunk_ranges(data: bytes, start: int, size: int = _CHUNK_BYTES):
+    """The ``(start, end)`` offsets of :func:`_chunks`' pieces."""
     pos, end_all = start, len(data)
     while pos < end_all:
         end = data.find(b"\n", min(pos + size, end_all))
         end = end_all if end < 0 else end + 1
-        yield data[pos:end]
+        yield pos, end
         pos = end
 
 
@@ -682,10 +688,10 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
     return _replace_tokens(data, start, channels, fmt)
 
 
-def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None] | None:
+def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.ndarray, _SourceRows | None] | None:
     """Which frames (T,) of ``channels`` (T, C) differ from the numbers of the
-    MOTION block ``data[start:]``, and the block's values (T, C) if any does
-    (``channels`` itself in the frames that do not: equal there); None when
+    MOTION block ``data[start:]``, and the block's values by frame if any
+    does (:class:`_SourceRows`: ``channels`` itself where equal); None when
     the block does not parse as T lines of C numbers.
 
     The block is parsed like :func:`_fast_values`, a few MB of lines at a
@@ -696,6 +702,7 @@ def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.nda
     rows = np.zeros(T, dtype=bool)
     values = None
     n, pos, end = 0, start, len(data)
+    changed: list[tuple[int, np.ndarray]] = []
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "Input line", UserWarning)
         warnings.filterwarnings("ignore", ".*no data", UserWarning)  # a piece of blank lines
@@ -713,12 +720,31 @@ def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.nda
                 return None
             differ = np.any(vals != channels[n : n + len(vals)], axis=1)
             if differ.any():
-                if values is None:
-                    values = np.array(channels, dtype=float, copy=True)
-                values[n : n + len(vals)] = vals
+                changed.append((n, vals))
                 rows[n : n + len(vals)] = differ
             n += len(vals)
-    return (rows, values) if n == T else None
+    if n != T:
+        return None
+    return rows, (_SourceRows(channels, changed) if changed else None)
+
+
+class _SourceRows:
+    """The values of a MOTION block by frame, ``[lo:hi]`` -> (hi - lo, C):
+    ``channels`` where they equal the block's numbers, the parsed values of
+    the pieces where some differ (only those are kept)."""
+
+    def __init__(self, channels: np.ndarray, pieces: list[tuple[int, np.ndarray]]) -> None:
+        self.channels = channels
+        self.pieces = pieces
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        lo, hi, _ = rows.indices(len(self.channels))
+        out = np.array(self.channels[lo:hi], dtype=float, copy=True)
+        for n0, vals in self.pieces:
+            a, b = max(lo, n0), min(hi, n0 + len(vals))
+            if a < b:
+                out[a - lo : b - lo] = vals[a - n0 : b - n0]
+        return out
 
 
 #: Bytes of the MOTION block :func:`_changed_rows` parses at once.
@@ -731,7 +757,7 @@ def _replace_tokens(
     channels: np.ndarray,
     fmt: str,
     changed_rows: np.ndarray | None = None,
-    source: np.ndarray | None = None,
+    source: np.ndarray | _SourceRows | None = None,
 ) -> list[bytes] | None:
     """:func:`_kept_numbers` a piece of :data:`_WRITE_CHUNK_BYTES` at a time.
     With ``changed_rows`` (T,) and the ``source`` values (T, C) (the block is
@@ -739,15 +765,17 @@ def _replace_tokens(
     others' numbers are not parsed again."""
     flat = channels.ravel()
     C = channels.shape[1]
-    out: list[bytes] = []
+    out: list = []
+    view = memoryview(data)  # pieces kept as they are go out as views of the source, not copies
     k, row, total = 0, 0, len(flat)
-    for piece in _chunks(data, start, _WRITE_CHUNK_BYTES):
+    for a, b in _chunk_ranges(data, start, _WRITE_CHUNK_BYTES):
         if changed_rows is not None:
-            n_rows = piece.count(b"\n") + (not piece.endswith(b"\n"))
+            n_rows = data.count(b"\n", a, b) + (data[b - 1 : b] != b"\n")
             if not changed_rows[row : row + n_rows].any():
-                out.append(piece)
+                out.append(view[a:b])
                 row, k = row + n_rows, k + n_rows * C
                 continue
+        piece = data[a:b]
         # split into tokens and the white space between them: number n of
         # the piece is pieces[first + 2 n] (a run of white space cut at the
         # piece's end stays two runs: the joined bytes are the same)
@@ -773,6 +801,9 @@ def _replace_tokens(
                 for i, tok in zip((first + 2 * changed).tolist(), new.split(b" "), strict=True):
                     pieces[i] = tok
                 piece = b"".join(pieces)
+            else:
+                piece = view[a:b]
+        del pieces, tokens
         out.append(piece)
         k += n
         if changed_rows is not None:
