@@ -561,8 +561,9 @@ def _read_npy_member(
                 f"{where}: member holds {info.file_size - data_start:,} data bytes, "
                 f"shape {list(shape)} needs {nbytes:,}",
             )
-        raw = bytearray(nbytes)
-        view = memoryview(raw)
+        # straight into the array's own (numpy-allocated, aligned) buffer: no copy
+        raw = np.empty(nbytes // ndtype.itemsize if ndtype.itemsize else 0, dtype=ndtype)
+        view = memoryview(raw.reshape(-1)).cast("B")
         got = 0
         while got < nbytes:
             n = fp.readinto(view[got:])
@@ -570,8 +571,7 @@ def _read_npy_member(
                 raise _fail(name, f"{where}: truncated data")
             got += n
         fp.read(1)  # reach the end of the member, where zipfile checks its CRC
-    arr = np.frombuffer(raw, dtype=ndtype)  # writable: a view of the bytearray, not a copy
-    arr = arr.reshape(shape[::-1]).T if fortran else arr.reshape(shape)
+    arr = raw.reshape(shape[::-1]).T if fortran else raw.reshape(shape)
     if fortran or arr.dtype != dtype:
         return np.array(arr, dtype=dtype, order="C")
     return arr
