@@ -700,7 +700,6 @@ def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.nda
     """
     T, C = channels.shape
     rows = np.zeros(T, dtype=bool)
-    values = None
     n, pos, end = 0, start, len(data)
     changed: list[tuple[int, np.ndarray]] = []
     with warnings.catch_warnings():
