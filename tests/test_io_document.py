@@ -618,3 +618,22 @@ def test_the_untouched_json_document_still_reads(march_json, tmp_path):
     path = tmp_path / "same.json"
     path.write_text(json.dumps(march_json))
     assert _run("info", path).exit_code == 0
+
+
+def test_pieces_join_to_the_document_bytes_and_a_file_reads_like_its_bytes(tmp_path):
+    """What the CLI writes (views of the arrays, piece by piece) is
+    ``document_bytes``, and an NPZ read from its open file (in place, no
+    bytes copy) is the same as from its bytes."""
+    manifest, arrays = sample()
+    data = document_bytes(manifest, arrays, "npz")
+    pieces = document.document_pieces(manifest, arrays, "npz")
+    assert b"".join(bytes(p) for p in pieces) == data
+    path = tmp_path / NAME
+    path.write_bytes(data)
+    m_bytes, a_bytes = parse_document(data, NAME)
+    with open(path, "rb") as fh:
+        m_file, a_file = parse_document(fh, NAME)
+    assert m_file == m_bytes
+    assert_same(arrays, a_file)
+    for key, value in a_file.items():
+        assert value.flags.writeable and value.flags.c_contiguous and value.dtype.isnative, key
