@@ -26,6 +26,7 @@ from . import quat
 from .document import Document
 from .errors import UsageError
 from .ik import ik_layer, two_bone_chain
+from .motion import local_rotations_from_channels, local_translations_from_channels
 from .sampling import at_times
 from .skeleton import forward_kinematics
 
@@ -89,6 +90,45 @@ def _chain_changed(sk, changed: np.ndarray, t: np.ndarray, c, blend: float) -> b
     return bool(changed[np.ix_(window, chain)].any())
 
 
+def check_joints(doc: Document) -> None:
+    """``UsageError`` for a constraint on a joint the skeleton does not have."""
+    names = doc.source.skeleton.names
+    for c in doc.constraints:
+        if c.joint not in names:
+            raise UsageError(f"constraint on unknown joint {c.joint!r}")
+
+
+def source_changed(src, rot: np.ndarray, tr: np.ndarray, lo: int) -> np.ndarray:
+    """(n, J) bool: where local rotations ``rot`` (n, J, 4) and translations
+    ``tr`` (n, J, 3) at source frames ``lo .. lo + n`` differ from the
+    source's.  Sign-blind, so the source's rotations need no unrolling:
+    any block of frames is compared on its own."""
+    sk = src.skeleton
+    ch = src.channels[lo : lo + len(rot)]
+    src_rot = local_rotations_from_channels(sk, ch, unroll=False)
+    src_tr = local_translations_from_channels(sk, ch)
+    return (1.0 - np.abs(np.sum(rot * src_rot, axis=-1)) > 1e-12) | np.any(np.abs(tr - src_tr) > 1e-9, axis=-1)
+
+
+def repairs_unseen(doc: Document) -> bool:
+    """Whether the joint layer may repair a constraint whatever the baked
+    pose: a pinned one, or one a timing edit moved."""
+    return any(c.pin or c.source_span != (float(c.start), float(c.end)) for c in doc.constraints)
+
+
+def disturbed_in(doc: Document, changed: np.ndarray, t: np.ndarray, blend: float) -> bool:
+    """Whether ``changed`` (n, J), the comparison with the source at frames
+    ``t`` (n,) (a block of a same-rate bake), puts any constraint among the
+    joint layer's candidates: its chain changed within its window.  Over
+    consecutive blocks, the same test as :func:`joint_layer`'s first pass."""
+    sk = doc.source.skeleton
+    for c in doc.constraints:
+        window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
+        if window.any() and _chain_changed(sk, changed, t, c, blend):
+            return True
+    return False
+
+
 def _linked(sk, a: str, b: str) -> bool:
     """Whether one joint is the other's parent (a foot and its toe)."""
     ia, ib = sk.names.index(a), sk.names.index(b)
@@ -107,21 +147,20 @@ def joint_layer(
     (see the module docstring)."""
     src = doc.source
     sk = src.skeleton
-    for c in doc.constraints:
-        if c.joint not in sk.names:
-            raise UsageError(f"constraint on unknown joint {c.joint!r}")
+    check_joints(doc)
     candidates = list(doc.constraints)
     if same_rate:
         # cheap first pass without forward kinematics: a constraint whose
         # chain keeps the source's local values over its window is untouched
-        changed = (1.0 - np.abs(np.sum(rot * src.local_rotations(), axis=-1)) > 1e-12) | np.any(
-            np.abs(tr - src.local_translations()) > 1e-9, axis=-1
-        )
+        changed = np.empty(rot.shape[:2], dtype=bool)
+        step = max(1, (1 << 16) // max(sk.n_joints, 1))
+        for lo in range(0, len(rot), step):  # no temporaries of the whole clip
+            changed[lo : lo + step] = source_changed(src, rot[lo : lo + step], tr[lo : lo + step], lo)
         candidates = [c for c in candidates if c.pin or _chain_changed(sk, changed, t, c, blend)]
     if not candidates:
         return rot
     _, wp = forward_kinematics(sk, rot, tr)
-    src_wp = src.world()[1]
+    src_wp = src.world_positions()
     size = src.figure_height()  # cached with the clip's world positions
 
     tolerance = _tolerance(size, same_rate)

@@ -88,9 +88,11 @@ def effector_positions(
     """
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
-        wr, wp = motion.world()  # computed once per clip
+        wp = motion.world_positions()  # computed once per clip
         height = motion.figure_height()
-        idx = np.arange(sk.n_joints) if names is None else np.array([sk.index(n) for n in names], dtype=int)
+        if names is None:  # all of them: the cached array itself (read-only), not a copy
+            return tuple(sk.names), wp, float(height)
+        idx = np.array([sk.index(n) for n in names], dtype=int)
         return tuple(sk.names[i] for i in idx), wp[:, idx], float(height)
     labels = motion.labels
     if names is None:

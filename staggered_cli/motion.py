@@ -22,8 +22,9 @@ from .skeleton import (
     ROTATION_CHANNELS,
     Skeleton,
     end_site_positions,
-    figure_height,
+    figure_extents,
     forward_kinematics,
+    height_of_extents,
 )
 
 
@@ -98,42 +99,70 @@ class BvhMotion:
 
     # Derived arrays are computed once per clip (extract and bake each need
     # them several times) and handed out read-only, since they are shared.
+    # Only what is needed throughout is kept: the local rotations and the
+    # world positions.  Local translations are mostly the constant offsets
+    # (cheap to make again), world rotations are made in blocks of frames.
     @cached_property
-    def _local(self) -> tuple[np.ndarray, np.ndarray]:
-        return _frozen(local_rotations_from_channels(self.skeleton, self.channels)), _frozen(
-            local_translations_from_channels(self.skeleton, self.channels)
-        )
+    def _local_rotations(self) -> np.ndarray:
+        return _frozen(local_rotations_from_channels(self.skeleton, self.channels))
 
     @cached_property
-    def _world(self) -> tuple[np.ndarray, np.ndarray]:
-        wr, wp = forward_kinematics(self.skeleton, *self._local)
-        return _frozen(wr), _frozen(wp)
+    def _world_positions(self) -> tuple[np.ndarray, float]:
+        """World positions (T, J, 3) and the figure height, by forward
+        kinematics over blocks of frames (each frame is its own: the same
+        numbers as all at once), so that world rotations never exist for
+        the whole clip."""
+        sk, T = self.skeleton, self.n_frames
+        rot, tr = self._local_rotations, self.local_translations()
+        wp = np.empty((T, sk.n_joints, 3))
+        extents = np.empty(T)
+        step = max(1, _FK_BLOCK // max(sk.n_joints, 1))
+        for lo in range(0, T, step):
+            hi = min(lo + step, T)
+            wr_b, wp_b = forward_kinematics(sk, rot[lo:hi], tr[lo:hi])
+            wp[lo:hi] = wp_b
+            extents[lo:hi] = figure_extents(sk, wp_b, end_site_positions(sk, wr_b, wp_b))
+        return _frozen(wp), height_of_extents(sk, extents)
 
     def local_rotations(self) -> np.ndarray:
         """(T, J, 4) local rotations, w first, each joint's track unrolled (read-only)."""
-        return self._local[0]
+        return self._local_rotations
+
+    def release_local(self) -> None:
+        """Forget the cached local rotations (:meth:`local_rotations` computes
+        them again if asked): 32 bytes per joint and frame, that bake frees
+        once it has compared them with the baked pose."""
+        self.__dict__.pop("_local_rotations", None)
 
     def local_translations(self) -> np.ndarray:
         """(T, J, 3) local translations: position channels where present, else offsets (read-only)."""
-        return self._local[1]
+        return _frozen(local_translations_from_channels(self.skeleton, self.channels))
 
     def world(self) -> tuple[np.ndarray, np.ndarray]:
-        """World rotations (T, J, 4) and positions (T, J, 3) (read-only)."""
-        return self._world
+        """World rotations (T, J, 4) and positions (T, J, 3) (read-only; the
+        rotations are computed anew: :meth:`world_positions` is cached)."""
+        wr, _ = forward_kinematics(self.skeleton, self._local_rotations, self.local_translations())
+        return _frozen(wr), self.world_positions()
+
+    def world_positions(self) -> np.ndarray:
+        """World positions (T, J, 3) (read-only, computed once)."""
+        return self._world_positions[0]
 
     def release_world(self) -> None:
-        """Forget the cached world transforms (:meth:`world` computes them
-        again if asked): 56 bytes per joint and frame, that extract frees
-        before its fit."""
-        self.__dict__.pop("_world", None)
-
-    @cached_property
-    def _figure_height(self) -> float:
-        wr, wp = self._world
-        return figure_height(self.skeleton, wp, end_site_positions(self.skeleton, wr, wp))
+        """Forget the cached world positions (:meth:`world_positions`
+        computes them again if asked): 24 bytes per joint and frame, that
+        extract frees before its fit.  The figure height stays."""
+        if "_world_positions" in self.__dict__:
+            self.__dict__["_figure_height"] = self._world_positions[1]
+            del self.__dict__["_world_positions"]
 
     def figure_height(self) -> float:
-        return self._figure_height
+        cached = self.__dict__.get("_figure_height")
+        return cached if cached is not None else self._world_positions[1]
+
+
+#: Joint transforms computed at once by the world positions' forward kinematics.
+_FK_BLOCK = 1 << 16
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -260,7 +289,10 @@ def position_columns(skeleton: Skeleton) -> list[tuple[int, list[int]]]:
     return out
 
 
-def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray, unroll: bool = True) -> np.ndarray:
+    """Local rotations (T, J, 4) of channel values (T, C), w first; each
+    joint's track unrolled (without ``unroll``, each frame's own sign: for
+    sign-blind uses, which may then take any block of frames)."""
     T = channels.shape[0]
     rot = quat.identity((T, skeleton.n_joints))
     for j, cols, order in rotation_columns(skeleton):
@@ -271,7 +303,11 @@ def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> n
             for col, axis in zip(cols, order, strict=True):
                 q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[:, col])))
             rot[:, j] = q
-    return quat.unroll(rot, axis=0)
+    # each joint's track on its own (the same signs as all at once): no
+    # temporaries of the whole clip
+    for j in range(skeleton.n_joints if unroll else 0):
+        rot[:, j] = quat.unroll(rot[:, j], axis=0)
+    return rot
 
 
 def local_translations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:

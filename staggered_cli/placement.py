@@ -84,7 +84,7 @@ def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
 
 
 def _middle_frame_positions(motion: BvhMotion) -> np.ndarray:
-    """World joint positions (J, 3) at the middle frame, ``motion.world()[1][T // 2]``
+    """World joint positions (J, 3) at the middle frame, ``motion.world_positions()[T // 2]``
     to the bit, from that frame alone: cull's document has no world
     transforms at hand, and those of every frame took 40 ms of cmu_01_01's.
     Kinematics go frame by frame, and the sign of a quaternion (which
@@ -105,27 +105,52 @@ def proxy_from_dense(variables, w: np.ndarray, keep: float | None = None) -> Pro
     finger or a constant channel does not decide where a pose goes.  Values
     are float32, which is plenty for comparing fits.
     """
-    cols = []
-    for _kind, _names, _targets, dense in variables:
-        d = np.asarray(dense, dtype=float)
-        if d.shape[-1] < 4:
-            d = np.concatenate([d, np.zeros(d.shape[:-1] + (4 - d.shape[-1],))], axis=-1)
-        cols.append(d)
+    cols = [np.asarray(dense, dtype=float) for _kind, _names, _targets, dense in variables]
     if not cols:
         return Proxy(np.zeros((0, 0, 4), dtype=np.float32), np.zeros(0), np.zeros(0, dtype=int))
     keep = KEEP if keep is None else keep
-    x = np.concatenate(cols, axis=1)
+    T = cols[0].shape[0]
+    V = sum(d.shape[1] for d in cols)
+
+    def x_of(lo: int, hi: int) -> np.ndarray:
+        """Frames ``lo:hi`` of all the variables (n, V, 4), translations padded with zeros."""
+        parts = []
+        for d in cols:
+            d = d[lo:hi]
+            if d.shape[-1] < 4:
+                d = np.concatenate([d, np.zeros(d.shape[:-1] + (4 - d.shape[-1],))], axis=-1)
+            parts.append(d)
+        return np.concatenate(parts, axis=1)
+
+    # a block of frames at a time (each step's length is its own), so that
+    # no (T, V, 4) float64 copy of the clip is made
+    rows = max(1, _PROXY_BLOCK // max(V, 1))
     w = np.asarray(w, dtype=float)
-    path = np.sum(np.linalg.norm(np.diff(x, axis=0), axis=2), axis=0) if len(x) > 1 else np.zeros(x.shape[1])
+    if T > 1:
+        steps = np.empty((T - 1, V))
+        for lo in range(0, T - 1, rows):
+            hi = min(lo + rows, T - 1)
+            steps[lo:hi] = np.linalg.norm(np.diff(x_of(lo, hi + 1), axis=0), axis=2)
+        path = np.sum(steps, axis=0)
+        del steps
+    else:
+        path = np.zeros(V)
     size = w * path
     order = np.argsort(-size, kind="stable")
     total = float(size.sum())
     if total <= 0:
-        return Proxy(x[:, :0].astype(np.float32), w[:0], np.zeros(0, dtype=int))
+        return Proxy(np.zeros((T, 0, 4), dtype=np.float32), w[:0], np.zeros(0, dtype=int))
     n = int(np.searchsorted(np.cumsum(size[order]), keep * total) + 1)
     pick = np.sort(order[: min(n, len(order))])
     pick = pick[size[pick] > 0]
-    return Proxy(np.ascontiguousarray(x[:, pick], dtype=np.float32), w[pick], pick)
+    x = np.empty((T, len(pick), 4), dtype=np.float32)
+    for lo in range(0, T, rows):
+        x[lo : lo + rows] = x_of(lo, lo + rows)[:, pick]
+    return Proxy(x, w[pick], pick)
+
+
+#: Variable values handled at once by :func:`proxy_from_dense`.
+_PROXY_BLOCK = 1 << 16
 
 
 def _values_at(x: np.ndarray, var: np.ndarray, f: np.ndarray) -> np.ndarray:

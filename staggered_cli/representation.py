@@ -394,29 +394,47 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
 
     ``samples_t[i]`` (Ni,) and ``samples_v[i]`` (Ni, D) are the motion of
     variable ``i``; samples at a knot time are dropped (the knot is exact).
-    Every segment of every variable is fitted in one batched call.
+    The segments are fitted in batched calls over groups of whole variables
+    of about :data:`_FIT_GROUP` samples each (every segment's fit is its own,
+    so grouping does not change a bit), filling outputs allocated once: the
+    temporaries stay bounded however long the clip.
     """
     V = knots.n_vars
     seg_ptr = knots.seg_ptr
-    gseg, us, vals, owner, scoord = [], [], [], [], []
-    for i in range(V):
-        kt = knots.t[knots.of(i)]
-        t = np.asarray(samples_t[i], dtype=float)
-        seg, u, keep = _inside(kt, t)
-        gseg.append(seg[keep] + seg_ptr[i])
-        us.append(u[keep])
-        vals.append(np.asarray(samples_v[i])[keep])
-        owner.append(np.full(int(keep.sum()), i))
-        scoord.append(seg[keep] + u[keep])
     d = _DIM[kind]
-    gseg_a = np.concatenate(gseg) if gseg else np.zeros(0, dtype=int)
-    u_a = np.concatenate(us) if us else np.zeros(0)
-    v_a = np.concatenate(vals) if vals else np.zeros((0, d))
-    s_a = np.concatenate(scoord) if scoord else np.zeros(0)
-    owner_a = np.concatenate(owner) if owner else np.zeros(0, dtype=int)
+    # first the number of samples each variable keeps, so that the outputs
+    # are allocated once and filled group by group
+    counts = np.zeros(V, dtype=int)
+    for i in range(V):
+        counts[i] = np.count_nonzero(_inside(knots.t[knots.of(i)], np.asarray(samples_t[i], dtype=float))[2])
+    samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
     first = knots.seg_first
-    a, b, disp = _fit_segments(kind, knots.v[first], knots.v[first + 1], gseg_a, u_a, v_a, len(first))
-    samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(owner_a, minlength=V))]).astype(int)
+    n_seg = len(first)
+    a = np.zeros((n_seg, 3))
+    b = np.zeros((n_seg, 3))
+    s_a = np.zeros(int(samp_ptr[-1]))
+    disp = np.zeros((int(samp_ptr[-1]), d))
+    for i0, i1 in _variable_groups(counts, _FIT_GROUP):
+        g0, g1 = int(seg_ptr[i0]), int(seg_ptr[i1])
+        gseg, us, vals = [], [], []
+        for i in range(i0, i1):
+            kt = knots.t[knots.of(i)]
+            t = np.asarray(samples_t[i], dtype=float)
+            seg, u, keep = _inside(kt, t)
+            seg, u = seg[keep], u[keep]
+            gseg.append(seg + (seg_ptr[i] - g0))
+            us.append(u)
+            vals.append(np.asarray(samples_v[i])[keep])
+            s_a[samp_ptr[i] : samp_ptr[i + 1]] = seg + u
+        gseg_a = np.concatenate(gseg) if gseg else np.zeros(0, dtype=int)
+        u_a = np.concatenate(us) if us else np.zeros(0)
+        v_a = np.concatenate(vals) if vals else np.zeros((0, d))
+        del gseg, us, vals
+        fs = first[g0:g1]
+        ga, gb, gdisp = _fit_segments(kind, knots.v[fs], knots.v[fs + 1], gseg_a, u_a, v_a, g1 - g0)
+        a[g0:g1], b[g0:g1] = ga, gb
+        disp[samp_ptr[i0] : samp_ptr[i1]] = gdisp
+        del gseg_a, u_a, v_a, ga, gb, gdisp
     knots = Knots(
         np.asarray(knots.ptr, dtype=int),
         np.asarray(knots.t, dtype=float),
@@ -425,6 +443,27 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
         np.asarray(knots.editing, dtype=bool),
     )
     return Layer(knots, a, b, samp_ptr, s_a, disp)
+
+
+#: Samples fitted in one batched call by :func:`fit_layer` (whole variables:
+#: a group holds at least one): its temporaries are a few hundred bytes a
+#: sample, so about 40 MB.
+_FIT_GROUP = 1 << 17
+
+
+def _variable_groups(counts: np.ndarray, most: int) -> list[tuple[int, int]]:
+    """Consecutive ranges ``[i0, i1)`` of variables whose ``counts`` add up
+    to at most ``most`` (a variable with more stands alone); none if there
+    are no variables."""
+    out, i0, n = [], 0, 0
+    for i, c in enumerate(counts):
+        if i > i0 and n + c > most:
+            out.append((i0, i))
+            i0, n = i, 0
+        n += int(c)
+    if len(counts):
+        out.append((i0, len(counts)))
+    return out
 
 
 def _fit_segments(kind, p0, p3, gseg, u, values, n_seg):

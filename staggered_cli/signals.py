@@ -414,12 +414,20 @@ def rotation_steps(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     T, V = rot.shape[:2]
     if T < 2 or V == 0:
         return np.zeros(max(T - 1, 0), dtype=bool), np.zeros((max(T - 1, 0), V), dtype=bool)
-    step = np.degrees(quat.angle_between(rot[:-1], rot[1:]))  # (T-1, V)
+    step = np.empty((T - 1, V))  # (T-1, V), in blocks of frames: no (T, V, 4) temporaries
+    rows = max(1, _STEP_BLOCK // V)
+    for lo in range(0, T - 1, rows):
+        hi = min(lo + rows, T - 1)
+        step[lo:hi] = np.degrees(quat.angle_between(rot[lo:hi], rot[lo + 1 : hi + 1]))
     typical = np.median(step, axis=0)  # (V,)
     big = step > np.maximum(POSE_JUMP_DEGREES, 10.0 * typical)
     moving = int(np.count_nonzero(step.max(axis=0) > 0))
     breaks = big.sum(axis=1) >= max(2, int(np.ceil(POSE_JUMP_SHARE * moving)))
     return breaks, (step > JUMP_DEGREES) | breaks[:, None]
+
+
+#: Rotations compared at once by :func:`rotation_steps`.
+_STEP_BLOCK = 1 << 16
 
 
 def _span_valid(valid: np.ndarray, span: int) -> np.ndarray:
@@ -491,7 +499,6 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
     breaks = np.zeros(max(T - 1, 0), dtype=bool)
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
-        wr, wp = motion.world()  # computed once per clip
         height = motion.figure_height()
         rot_vals = next((d for k, _, _, d in variables if k == ROTATION), np.zeros((T, 0, 4)))
         breaks, rot_jumps = rotation_steps(rot_vals)

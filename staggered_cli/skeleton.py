@@ -139,12 +139,24 @@ def figure_height(skeleton: Skeleton, world_pos: np.ndarray, end_pos: np.ndarray
     (joints of :func:`body_joints` and their End Sites): independent of the up
     axis and of units, and not fooled by a crouch or a T-pose frame.
     """
+    return height_of_extents(skeleton, figure_extents(skeleton, world_pos, end_pos))
+
+
+def figure_extents(skeleton: Skeleton, world_pos: np.ndarray, end_pos: np.ndarray | None = None) -> np.ndarray:
+    """The largest side (T,) of the body's bounding box in each frame (see
+    :func:`figure_height`, which is their median): a frame's own, so that
+    a long clip can be measured a block of frames at a time."""
     body = body_joints(skeleton)
     pts = world_pos[:, body]
     if end_pos is not None and end_pos.shape[1]:
         pts = np.concatenate([pts, end_pos[:, np.isin(skeleton.end_parents, body)]], axis=1)
     ext = np.max(pts, axis=1) - np.min(pts, axis=1)  # (T, 3)
-    size = float(np.median(np.max(ext, axis=1)))
+    return np.max(ext, axis=1)
+
+
+def height_of_extents(skeleton: Skeleton, extents: np.ndarray) -> float:
+    """The figure height of the per-frame :func:`figure_extents`."""
+    size = float(np.median(extents))
     if not np.isfinite(size) or size <= 0:
         size = float(np.sum(np.linalg.norm(skeleton.offsets, axis=1))) or 1.0
     return size

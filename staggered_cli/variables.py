@@ -23,8 +23,17 @@ def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[s
     layout = variable_layout(motion)
     if isinstance(motion, BvhMotion):
         dense = {ROTATION: motion.local_rotations(), TRANSLATION: motion.local_translations()}  # cached per clip
-        return [(kind, names, targets, dense[kind][:, targets]) for kind, names, targets in layout]
+        return [(kind, names, targets, _columns(dense[kind], targets)) for kind, names, targets in layout]
     return [(*layout[0], fill_gaps(motion.points))]
+
+
+def _columns(values: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """``values[:, targets]`` (T, V, D): the cached array itself (read-only,
+    not a copy of 2.3 times the channel bytes) when the targets are all its
+    joints in order, the common case."""
+    if np.array_equal(targets, np.arange(values.shape[1])):
+        return values
+    return values[:, targets]
 
 
 def fill_gaps(points: np.ndarray) -> np.ndarray:

@@ -211,3 +211,24 @@ def test_bake_warns_when_the_contact_layer_takes_back_an_edit(cmu_walk, tmp_path
     assert len(warned) == 1 and "--no-ik" in warned[0], r.stderr
     r = CliRunner().invoke(cli, ["bake", str(doc_path), "--no-ik", "-o", str(tmp_path / "free.bvh")])
     assert r.exit_code == 0 and "LeftUpLeg" not in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("edited", [False, True])
+def test_a_bake_by_blocks_of_frames_is_the_bake_of_the_whole_pose(monkeypatch, edited):
+    """Each frame is its own: baking 97 frames at a time gives the bytes of
+    the whole-clip path (the one the contact layer needs), and a block that
+    finds a disturbed contact hands over to it."""
+    import staggered_cli.ops.bake as B
+    from staggered_cli import contact_layer
+    from staggered_cli.io.bvh import bvh_bytes
+
+    doc = dev_document("cmu_02_01_walk.bvh")
+    if edited:
+        doc = E.edit_pose(doc, doc.n_poses // 2, rotate={"LeftUpLeg": (15.0, 0.0, 0.0)})
+    monkeypatch.setattr(B, "_BAKE_BLOCK", 97)
+    blocks = bvh_bytes(bake(doc))
+    with monkeypatch.context() as m:
+        m.setattr(contact_layer, "disturbed_in", lambda *a: True)  # always the whole pose
+        whole = bvh_bytes(bake(doc))
+    assert blocks == whole
+    assert (blocks == bvh_bytes(bake(doc, ik=False))) is not edited  # the edit disturbs a contact

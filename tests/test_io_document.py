@@ -40,6 +40,11 @@ from .conftest import SAMPLES, one_line_error
 NAME = "walk.stag"
 
 
+def _npy_bytes(arr: np.ndarray) -> bytes:
+    """The ``.npy`` member the writer stores for ``arr``."""
+    return b"".join(bytes(p) for p in document._npy_parts(arr))
+
+
 def sample():
     rng = np.random.default_rng(7)
     manifest = {
@@ -370,7 +375,7 @@ def test_total_of_members_is_capped(monkeypatch):
 @pytest.mark.parametrize("shape", [[10**6, 10**6], [10**12], [2**62, 2**62, 2**62]])
 def test_absurd_shapes_are_refused_before_allocating(shape):
     env = {"arrays": {"a": {"dtype": "float64", "shape": shape}}, "format": FORMAT_NAME, "manifest": {}, "version": 1}
-    members = {MANIFEST_MEMBER: json.dumps(env).encode(), "a.npy": document._npy_bytes(np.zeros(1))}
+    members = {MANIFEST_MEMBER: json.dumps(env).encode(), "a.npy": _npy_bytes(np.zeros(1))}
     elapsed, peak = _measure(lambda: refused(rezip(members), "array 'a'", "over the limit"))
     assert elapsed < 1.0 and peak < 2 << 20
     env["arrays"]["a"]["values"] = []
@@ -380,14 +385,14 @@ def test_absurd_shapes_are_refused_before_allocating(shape):
 
 def test_npy_header_must_agree_with_the_manifest():
     members = members_of(document_bytes({}, {"a": np.zeros(4)}, "npz"))
-    members["a.npy"] = document._npy_bytes(np.zeros(5))
+    members["a.npy"] = _npy_bytes(np.zeros(5))
     refused(rezip(members), "array 'a'", "header says")
     # a header whose shape matches but whose member is too short for it
-    members["a.npy"] = document._npy_bytes(np.zeros(4))[:-8]
+    members["a.npy"] = _npy_bytes(np.zeros(4))[:-8]
     refused(rezip(members), "array 'a'", "data bytes")
     members["a.npy"] = b"not npy at all"
     refused(rezip(members), "not a .npy member")
-    members["a.npy"] = document._npy_bytes(np.zeros(4)).replace(b"'<f8'", b"'<U2'")
+    members["a.npy"] = _npy_bytes(np.zeros(4)).replace(b"'<f8'", b"'<U2'")
     refused(rezip(members), "dtype '<U2' not allowed")
 
 
@@ -613,3 +618,22 @@ def test_the_untouched_json_document_still_reads(march_json, tmp_path):
     path = tmp_path / "same.json"
     path.write_text(json.dumps(march_json))
     assert _run("info", path).exit_code == 0
+
+
+def test_pieces_join_to_the_document_bytes_and_a_file_reads_like_its_bytes(tmp_path):
+    """What the CLI writes (views of the arrays, piece by piece) is
+    ``document_bytes``, and an NPZ read from its open file (in place, no
+    bytes copy) is the same as from its bytes."""
+    manifest, arrays = sample()
+    data = document_bytes(manifest, arrays, "npz")
+    pieces = document.document_pieces(manifest, arrays, "npz")
+    assert b"".join(bytes(p) for p in pieces) == data
+    path = tmp_path / NAME
+    path.write_bytes(data)
+    m_bytes, a_bytes = parse_document(data, NAME)
+    with open(path, "rb") as fh:
+        m_file, a_file = parse_document(fh, NAME)
+    assert m_file == m_bytes
+    assert_same(arrays, a_file)
+    for key, value in a_file.items():
+        assert value.flags.writeable and value.flags.c_contiguous and value.dtype.isnative, key

@@ -214,7 +214,10 @@ def test_channels_come_back_nearest_the_reference():
 
 def test_derived_arrays_are_computed_once_and_read_only(cmu_walk):
     m, _ = cmu_walk
-    assert m.local_rotations() is m.local_rotations() and m.world() is m.world()
+    # the local rotations and world positions are kept; world rotations and
+    # local translations (mostly the constant offsets) are made when asked
+    assert m.local_rotations() is m.local_rotations() and m.world_positions() is m.world_positions()
+    assert m.world()[1] is m.world_positions()
     for a in (m.local_rotations(), m.local_translations(), *m.world()):
         assert not a.flags.writeable
         with pytest.raises(ValueError):

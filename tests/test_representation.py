@@ -129,3 +129,20 @@ def test_frame_and_knot_times_merge_as_unique_does():
         on = frame >= 0
         np.testing.assert_array_equal(st[on], frame_t[frame[on]])
         assert on.sum() == len(frame_t)
+
+
+def test_extract_in_groups_and_blocks_gives_the_same_bits(monkeypatch):
+    """The fit over groups of a few variables, forward kinematics, rotation
+    steps and the placement proxy over small blocks of frames: the same
+    document to the bit (every segment and frame is its own)."""
+    from staggered_cli import motion, placement, representation, signals
+    from staggered_cli.io.document import document_bytes
+    from staggered_cli.ops.extract import extract
+
+    path = mocap("cmu_01_01_forward_jumps.bvh")
+    once = document_bytes(*to_parts(extract(read_bvh(path))), "npz")
+    monkeypatch.setattr(representation, "_FIT_GROUP", 3000)  # about one variable a group
+    monkeypatch.setattr(motion, "_FK_BLOCK", 31 * 100)
+    monkeypatch.setattr(signals, "_STEP_BLOCK", 32 * 77)
+    monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
+    assert document_bytes(*to_parts(extract(read_bvh(path))), "npz") == once

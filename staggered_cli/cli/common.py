@@ -25,10 +25,10 @@ def read_document(path: str):
 
 def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
     """Serialize ``doc`` and write it atomically (or to stdout)."""
-    from ..io.document import document_bytes, to_parts
+    from ..io.document import document_pieces, to_parts
 
     manifest, arrays = to_parts(doc)
-    emit(output, document_bytes(manifest, arrays, document_format(fmt, output)), force)
+    emit(output, document_pieces(manifest, arrays, document_format(fmt, output)), force)
 
 
 def write_motion(motion, output: str, force: bool) -> None:
@@ -36,9 +36,9 @@ def write_motion(motion, output: str, force: bool) -> None:
     from ..motion import BvhMotion
 
     if isinstance(motion, BvhMotion):
-        from ..io.bvh import bvh_bytes
+        from ..io.bvh import bvh_pieces
 
-        emit(output, bvh_bytes(motion), force)
+        emit(output, bvh_pieces(motion), force)
     else:
         from ..io.c3d import c3d_bytes
 

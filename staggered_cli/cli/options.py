@@ -161,6 +161,17 @@ def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
     :class:`~staggered_cli.motion.MarkerMotion`, or a document as
     ``(manifest, arrays)``.  Errors are ``DataError`` naming the file.
     """
+    zipped = files.open_zip(path)
+    if zipped is not None:  # an NPZ document, read from the file: no copy of it in memory
+        from ..io.document import parse_document
+
+        name = files.display_name(path)
+        with zipped:
+            try:
+                return parse_document(zipped, name)
+            except StaggeredError as err:
+                err.with_source(name)
+                raise
     data, name = read_input(path)
     try:
         kind = detect_kind(data)
@@ -204,18 +215,21 @@ def _is_binary(data: bytes) -> bool:
     return b"\0" in data[:8192]
 
 
-def emit(path: str, data: bytes, force: bool) -> None:
-    """Write ``data`` to ``path`` atomically, or to stdout for ``-``.
+def emit(path: str, data, force: bool) -> None:
+    """Write ``data`` (bytes, or a list of bytes-like pieces) to ``path``
+    atomically, or to stdout for ``-``.
 
     An existing file is refused without ``force`` (``UsageError`` naming it).
     Binary data (an NPZ document, a C3D) is refused when stdout is a terminal.
     """
     if path == STDIO:
         out = sys.stdout
-        if _is_binary(data) and out is not None and out.isatty():
+        # of pieces, the first tells what it is (a zip header, or all the JSON)
+        head = bytes(memoryview(data[0] if isinstance(data, list | tuple) and data else data)[:8192])
+        if _is_binary(head) and out is not None and out.isatty():
             from ..io.document import is_document
 
-            if is_document(data):
+            if is_document(head):
                 hint = "refusing to write a binary (NPZ) document to the terminal: use -o FILE or --format json"
             else:
                 hint = "refusing to write binary data to the terminal: use -o FILE or redirect standard output"

@@ -270,11 +270,17 @@ def _split_lines(data: bytes, start: int, count: int) -> tuple[list[bytes], int]
 
 def _chunks(data: bytes, start: int, size: int = _CHUNK_BYTES):
     """``data[start:]`` in pieces of about ``size`` bytes ending at a line end."""
+    for pos, end in _chunk_ranges(data, start, size):
+        yield data[pos:end]
+
+
+def _chunk_ranges(data: bytes, start: int, size: int = _CHUNK_BYTES):
+    """The ``(start, end)`` offsets of :func:`_chunks`' pieces."""
     pos, end_all = start, len(data)
     while pos < end_all:
         end = data.find(b"\n", min(pos + size, end_all))
         end = end_all if end < 0 else end + 1
-        yield data[pos:end]
+        yield pos, end
         pos = end
 
 
@@ -501,7 +507,8 @@ def check_writable(motion: BvhMotion) -> None:
         if values.size and not np.all(np.abs(values) <= MAX_MAGNITUDE):
             raise DataError(f"cannot write the BVH: a {what} is beyond ±{MAX_MAGNITUDE:g} (the BVH reader's limit)")
     ch = motion.channels
-    if ch.size and not np.all(np.abs(ch) <= MAX_MAGNITUDE):
+    rows = max(1, (1 << 18) // max(ch.shape[1], 1))  # a block at a time: no temporaries of the clip
+    if ch.size and not all(np.all(np.abs(ch[lo : lo + rows]) <= MAX_MAGNITUDE) for lo in range(0, len(ch), rows)):
         bad = int(np.flatnonzero(~(np.abs(ch.ravel()) <= MAX_MAGNITUDE))[0])
         frame, col = divmod(bad, ch.shape[1])
         raise DataError(
@@ -515,7 +522,13 @@ def check_writable(motion: BvhMotion) -> None:
 
 
 def bvh_bytes(motion: BvhMotion) -> bytes:
-    """The BVH file of ``motion`` as bytes.
+    """The BVH file of ``motion`` as bytes (see :func:`bvh_pieces`)."""
+    return b"".join(bvh_pieces(motion))
+
+
+def bvh_pieces(motion: BvhMotion) -> list:
+    """The BVH file of ``motion`` as bytes-like pieces to write one after the
+    other (what is kept of the source's text is a view of it, not a copy).
 
     With ``motion.source`` (the file it was read from, same skeleton) the
     source's text is kept: the header as written (only the ``Frames:`` and
@@ -577,12 +590,12 @@ def bvh_bytes(motion: BvhMotion) -> bytes:
     ]
     header = "\n".join(out) + "\n"
     if ch.shape[0] == 0:
-        return header.encode("utf-8")
+        return [header.encode("utf-8")]
     row = " ".join([motion.number_format] * ch.shape[1]) + "\n"
     # one % over the whole block: the fastest pure-Python formatting
     flat = ch.ravel().tolist()
     body = (row * ch.shape[0]) % tuple(flat)
-    return (header + body).encode("utf-8")
+    return [(header + body).encode("utf-8")]
 
 
 _LINE = re.compile(rb"[^\r\n]*(?:\r\n|\r|\n|$)")
@@ -601,7 +614,7 @@ def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
     )
 
 
-def _in_source_layout(motion: BvhMotion) -> bytes | None:
+def _in_source_layout(motion: BvhMotion) -> list | None:
     """``motion`` written in the text of ``motion.source`` (see :func:`bvh_bytes`),
     or None when the source is not a BVH of the same skeleton."""
     data = motion.source
@@ -632,13 +645,13 @@ def _in_source_layout(motion: BvhMotion) -> bytes | None:
     lines[2] = ftime.group(1) + text.encode("ascii") + ftime.group(3)
     head = bom + data[:at] + b"".join(lines)
     if T == 0:
-        return head
+        return [head]
     kept = _kept_numbers(data, pos, ch, motion.number_format)
     if kept is None:  # another frame count (a resampled bake): the source's line ending
         newline = lines[2][len(lines[2].rstrip(b"\r\n")) :] or b"\n"
         row = " ".join([motion.number_format] * C) + newline.decode("ascii")
-        return head + ((row * T) % tuple(ch.ravel().tolist())).encode("ascii")
-    return b"".join([head, *kept])
+        return [head + ((row * T) % tuple(ch.ravel().tolist())).encode("ascii")]
+    return [head, *kept]
 
 
 #: The writer rewrites the source's MOTION block this many bytes at a time:
@@ -660,11 +673,11 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
         # the reader's fast parse: when no number changed (a round trip) the
         # block is the source's, and no token need be looked at; with one
         # frame a line and no blank line, only the lines that changed are
-        values = _fast_values(data, start, T, C)
-        if values is not None:
-            rows = np.any(values != channels, axis=1)
+        found = _changed_rows(data, start, channels)
+        if found is not None:
+            rows, values = found
             if not rows.any():
-                return [data[start:]]
+                return [memoryview(data)[start:]]  # the source's own block: a view, not a copy
             lines = data.count(b"\n", start) + (not data.endswith(b"\n"))
             if lines == T:
                 changed_rows = rows
@@ -675,13 +688,75 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
     return _replace_tokens(data, start, channels, fmt)
 
 
+def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.ndarray, _SourceRows | None] | None:
+    """Which frames (T,) of ``channels`` (T, C) differ from the numbers of the
+    MOTION block ``data[start:]``, and the block's values by frame if any
+    does (:class:`_SourceRows`: ``channels`` itself where equal); None when
+    the block does not parse as T lines of C numbers.
+
+    The block is parsed like :func:`_fast_values`, a few MB of lines at a
+    time, so that a round trip (nothing changed) keeps no parsed copy of
+    the clip.
+    """
+    T, C = channels.shape
+    rows = np.zeros(T, dtype=bool)
+    n, pos, end = 0, start, len(data)
+    changed: list[tuple[int, np.ndarray]] = []
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Input line", UserWarning)
+        warnings.filterwarnings("ignore", ".*no data", UserWarning)  # a piece of blank lines
+        while pos < end:
+            cut = data.find(b"\n", min(pos + _PARSE_CHUNK_BYTES, end - 1))
+            stop = end if cut < 0 else cut + 1
+            try:
+                vals = np.loadtxt(io.BytesIO(data[pos:stop]), dtype=float, ndmin=2, comments=None)
+            except ValueError:
+                return None
+            pos = stop
+            if vals.size == 0:
+                continue
+            if vals.shape[1] != C or n + len(vals) > T:
+                return None
+            differ = np.any(vals != channels[n : n + len(vals)], axis=1)
+            if differ.any():
+                changed.append((n, vals))
+                rows[n : n + len(vals)] = differ
+            n += len(vals)
+    if n != T:
+        return None
+    return rows, (_SourceRows(channels, changed) if changed else None)
+
+
+class _SourceRows:
+    """The values of a MOTION block by frame, ``[lo:hi]`` -> (hi - lo, C):
+    ``channels`` where they equal the block's numbers, the parsed values of
+    the pieces where some differ (only those are kept)."""
+
+    def __init__(self, channels: np.ndarray, pieces: list[tuple[int, np.ndarray]]) -> None:
+        self.channels = channels
+        self.pieces = pieces
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        lo, hi, _ = rows.indices(len(self.channels))
+        out = np.array(self.channels[lo:hi], dtype=float, copy=True)
+        for n0, vals in self.pieces:
+            a, b = max(lo, n0), min(hi, n0 + len(vals))
+            if a < b:
+                out[a - lo : b - lo] = vals[a - n0 : b - n0]
+        return out
+
+
+#: Bytes of the MOTION block :func:`_changed_rows` parses at once.
+_PARSE_CHUNK_BYTES = 1 << 22
+
+
 def _replace_tokens(
     data: bytes,
     start: int,
     channels: np.ndarray,
     fmt: str,
     changed_rows: np.ndarray | None = None,
-    source: np.ndarray | None = None,
+    source: np.ndarray | _SourceRows | None = None,
 ) -> list[bytes] | None:
     """:func:`_kept_numbers` a piece of :data:`_WRITE_CHUNK_BYTES` at a time.
     With ``changed_rows`` (T,) and the ``source`` values (T, C) (the block is
@@ -689,15 +764,17 @@ def _replace_tokens(
     others' numbers are not parsed again."""
     flat = channels.ravel()
     C = channels.shape[1]
-    out: list[bytes] = []
+    out: list = []
+    view = memoryview(data)  # pieces kept as they are go out as views of the source, not copies
     k, row, total = 0, 0, len(flat)
-    for piece in _chunks(data, start, _WRITE_CHUNK_BYTES):
+    for a, b in _chunk_ranges(data, start, _WRITE_CHUNK_BYTES):
         if changed_rows is not None:
-            n_rows = piece.count(b"\n") + (not piece.endswith(b"\n"))
+            n_rows = data.count(b"\n", a, b) + (data[b - 1 : b] != b"\n")
             if not changed_rows[row : row + n_rows].any():
-                out.append(piece)
+                out.append(view[a:b])
                 row, k = row + n_rows, k + n_rows * C
                 continue
+        piece = data[a:b]
         # split into tokens and the white space between them: number n of
         # the piece is pieces[first + 2 n] (a run of white space cut at the
         # piece's end stays two runs: the joined bytes are the same)
@@ -723,6 +800,9 @@ def _replace_tokens(
                 for i, tok in zip((first + 2 * changed).tolist(), new.split(b" "), strict=True):
                     pieces[i] = tok
                 piece = b"".join(pieces)
+            else:
+                piece = view[a:b]
+        del pieces, tokens
         out.append(piece)
         k += n
         if changed_rows is not None:
@@ -734,4 +814,4 @@ def write_bvh(path: str | os.PathLike, motion: BvhMotion, force: bool = True) ->
     """Write ``motion`` to ``path`` atomically (temp file, then rename)."""
     from .files import write_atomic
 
-    write_atomic(os.fspath(path), bvh_bytes(motion), force=force)
+    write_atomic(os.fspath(path), bvh_pieces(motion), force=force)

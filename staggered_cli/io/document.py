@@ -148,8 +148,9 @@ def _canonical(arrays: dict[str, np.ndarray]) -> list[tuple[str, str, np.ndarray
     return out
 
 
-def _npy_bytes(arr: np.ndarray) -> bytes:
-    """``.npy`` version 1.0 bytes of a little-endian C-contiguous array.
+def _npy_parts(arr: np.ndarray) -> list:
+    """``.npy`` version 1.0 bytes of a little-endian C-contiguous array, as
+    its header and a view of its data (not copied).
 
     The header is written here rather than by NumPy so that the bytes do not
     depend on the NumPy version.
@@ -158,15 +159,67 @@ def _npy_bytes(arr: np.ndarray) -> bytes:
     # magic (6) + version (2) + length (2) + header + padding + '\n' is a multiple of 64
     pad = -(10 + len(header) + 1) % 64
     header_bytes = (header + " " * pad + "\n").encode("latin1")
-    return _NPY_MAGIC + b"\x01\x00" + len(header_bytes).to_bytes(2, "little") + header_bytes + arr.tobytes()
+    head = _NPY_MAGIC + b"\x01\x00" + len(header_bytes).to_bytes(2, "little") + header_bytes
+    if arr.size == 0:
+        return [head]
+    return [head, memoryview(arr.reshape(-1)).cast("B")]
 
 
-def _zip_member(zf: zipfile.ZipFile, name: str, data: bytes) -> None:
+def _zip_member(zf: zipfile.ZipFile, name: str, parts: list) -> None:
+    """Store the member ``name`` whose bytes are the concatenation of ``parts``
+    (bytes-like), written through without joining them: the same bytes as
+    ``writestr`` of the joined data (which sets the size first, then writes)."""
     info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
     info.compress_type = zipfile.ZIP_STORED
     info.create_system = 3  # unix, so that the mode bits below mean the same everywhere
     info.external_attr = 0o100644 << 16
-    zf.writestr(info, data)
+    info.file_size = sum(memoryview(p).nbytes for p in parts)
+    with zf.open(info, mode="w") as dest:
+        for part in parts:
+            dest.write(part)
+
+
+class _Pieces:
+    """A seekable sink that keeps what is written as a list of pieces
+    without copying them (a zip member's data is a view of its array).
+
+    ``zipfile`` writes forward, and overwrites only a member's local header
+    once its CRC is known, with a header of the same length: that is the one
+    rewrite supported."""
+
+    def __init__(self) -> None:
+        self.pieces: list = []
+        self._starts: dict[int, int] = {}  # offset -> index of the piece starting there
+        self._end = 0
+        self._pos = 0
+
+    def tell(self) -> int:
+        return self._pos
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        self._pos = {0: pos, 1: self._pos + pos, 2: self._end + pos}[whence]
+        return self._pos
+
+    def write(self, data) -> int:
+        n = memoryview(data).nbytes
+        if self._pos == self._end:
+            self._starts[self._pos] = len(self.pieces)
+            self.pieces.append(data if n > _COPY_BELOW else bytes(data))
+            self._end += n
+        else:
+            i = self._starts.get(self._pos)
+            if i is None or memoryview(self.pieces[i]).nbytes != n:
+                raise ValueError("only a whole piece can be rewritten")
+            self.pieces[i] = bytes(data)
+        self._pos += n
+        return n
+
+    def flush(self) -> None:
+        pass
+
+
+#: Pieces smaller than this are copied (headers): larger ones are kept as given.
+_COPY_BELOW = 1 << 16
 
 
 def _format_value(dname: str) -> Any:
@@ -213,18 +266,25 @@ def document_bytes(manifest: dict, arrays: dict[str, np.ndarray], fmt: str) -> b
     The same input always gives the same bytes.  Raises ``ValueError`` or
     ``TypeError`` for content a document cannot hold (a bug in the caller).
     """
+    return b"".join(document_pieces(manifest, arrays, fmt))
+
+
+def document_pieces(manifest: dict, arrays: dict[str, np.ndarray], fmt: str) -> list:
+    """The bytes of :func:`document_bytes` as a list of bytes-like pieces to
+    write one after the other: an NPZ's large pieces are views of the arrays,
+    so that writing a long clip's document takes no second copy of it."""
     items = _canonical(arrays)
     if fmt == "npz":
         index = {name: {"dtype": dname, "shape": list(arr.shape)} for name, dname, arr in items}
         envelope = {"arrays": index, "format": FORMAT_NAME, "manifest": manifest, "version": FORMAT_VERSION}
-        members = {MANIFEST_MEMBER: (_dump_manifest(envelope, 1) + "\n").encode("utf-8")}
+        members = {MANIFEST_MEMBER: [(_dump_manifest(envelope, 1) + "\n").encode("utf-8")]}
         for name, _, arr in items:
-            members[name + ".npy"] = _npy_bytes(arr)
-        buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
+            members[name + ".npy"] = _npy_parts(arr)
+        sink = _Pieces()
+        with zipfile.ZipFile(sink, "w", allowZip64=True) as zf:  # type: ignore[arg-type]
             for member in sorted(members):
                 _zip_member(zf, member, members[member])
-        return buf.getvalue()
+        return sink.pieces
     if fmt == "json":
         entries = []
         for name, dname, arr in items:
@@ -245,7 +305,7 @@ def document_bytes(manifest: dict, arrays: dict[str, np.ndarray], fmt: str) -> b
             f' "version": {FORMAT_VERSION}\n'
             "}\n"
         )
-        return text.encode("utf-8")
+        return [text.encode("utf-8")]
     raise ValueError(f"unknown document format {fmt!r} (npz or json)")
 
 
@@ -402,7 +462,7 @@ _ZIP_ERRORS = (
 )
 
 
-def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+def _parse_npz(data, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     try:
         return _read_npz(data, name)
     except DataError:
@@ -412,8 +472,14 @@ def _parse_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
         raise _fail(name, f"truncated or corrupt NPZ document ({reason})") from None
 
 
-def _read_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
-    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+def _read_npz(data, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """``data``: the bytes, or a seekable binary file, of an NPZ document."""
+    if isinstance(data, bytes | bytearray | memoryview):
+        size, source = len(data), io.BytesIO(data)
+    else:
+        size, source = data.seek(0, 2), data
+        data.seek(0)
+    with zipfile.ZipFile(source) as zf:
         infos = zf.infolist()
         if len(infos) > MAX_ARRAYS + 1:
             raise _fail(name, f"document has {len(infos)} members (at most {MAX_ARRAYS + 1})")
@@ -433,7 +499,7 @@ def _read_npz(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
                 raise _fail(
                     name, f"member {info.filename!r} declares {info.file_size:,} bytes, over the limit of {limit:,}"
                 )
-            if info.compress_size > len(data) or (
+            if info.compress_size > size or (
                 info.compress_type == zipfile.ZIP_STORED and info.compress_size != info.file_size
             ):
                 raise _fail(name, f"corrupt NPZ document (member {info.filename!r} declares sizes the file lacks)")
@@ -495,8 +561,9 @@ def _read_npy_member(
                 f"{where}: member holds {info.file_size - data_start:,} data bytes, "
                 f"shape {list(shape)} needs {nbytes:,}",
             )
-        raw = bytearray(nbytes)
-        view = memoryview(raw)
+        # straight into the array's own (numpy-allocated, aligned) buffer: no copy
+        raw = np.empty(nbytes // ndtype.itemsize if ndtype.itemsize else 0, dtype=ndtype)
+        view = memoryview(raw.reshape(-1)).cast("B")
         got = 0
         while got < nbytes:
             n = fp.readinto(view[got:])
@@ -504,9 +571,10 @@ def _read_npy_member(
                 raise _fail(name, f"{where}: truncated data")
             got += n
         fp.read(1)  # reach the end of the member, where zipfile checks its CRC
-    arr = np.frombuffer(raw, dtype=ndtype)
-    arr = arr.reshape(shape[::-1]).T if fortran else arr.reshape(shape)
-    return np.array(arr, dtype=dtype, order="C")
+    arr = raw.reshape(shape[::-1]).T if fortran else raw.reshape(shape)
+    if fortran or arr.dtype != dtype:
+        return np.array(arr, dtype=dtype, order="C")
+    return arr
 
 
 def _array_from_json(aname: str, entry: dict, dtype: np.dtype, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -554,15 +622,18 @@ def _parse_json(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     return env["manifest"], arrays
 
 
-def parse_document(data: bytes, name: str) -> tuple[dict, dict[str, np.ndarray]]:
+def parse_document(data, name: str) -> tuple[dict, dict[str, np.ndarray]]:
     """``(manifest, arrays)`` from the bytes of a document (npz or json,
-    detected by content).
+    detected by content), or from a seekable binary file of an NPZ one
+    (read in place: the arrays are all it allocates).
 
     ``name`` is used in error messages.  Raises :class:`DataError` with a
     one-line reason for anything that is not a valid document of a version
     this code reads.  Arrays come back writable, C-contiguous and in native
     byte order.
     """
+    if not isinstance(data, bytes | bytearray | memoryview):
+        return _parse_npz(data, name)
     if data[:4] in _ZIP_MAGICS:
         return _parse_npz(data, name)
     if is_document(data):
@@ -794,7 +865,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")
             need(
-                bool(np.all(np.abs(ch) <= _MAX_MAGNITUDE)),
+                _rows_all(ch, lambda b: np.abs(b) <= _MAX_MAGNITUDE),
                 f"source.channels are not all finite numbers within ±{_MAX_MAGNITUDE:g}",
             )
             text = source.frame_time_text
@@ -812,7 +883,7 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 f"source.points has shape {pts.shape}, expected ({frames}, {len(labels)}, 3)",
             )
             need(
-                not bool(np.any(np.abs(pts) > _MAX_MAGNITUDE)),
+                _rows_all(pts, lambda b: ~(np.abs(b) > _MAX_MAGNITUDE)),
                 f"source.points hold values that are infinite or beyond ±{_MAX_MAGNITUDE:g}",
             )
             raw = arr("source.c3d", 1, "u")
@@ -924,6 +995,24 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
     )
 
 
+def _rows_all(a: np.ndarray, test) -> bool:
+    """Whether the elementwise (or row-wise) ``test`` holds everywhere in
+    ``a``, judged a block of rows at a time: no temporaries of a long clip's
+    arrays."""
+    if a.ndim == 0:
+        return bool(test(a))
+    rows = max(1, _CHECK_BLOCK // max(int(np.prod(a.shape[1:])), 1))
+    return all(bool(np.all(test(a[lo : lo + rows]))) for lo in range(0, len(a), rows))
+
+
+def _unit_rows(q: np.ndarray) -> np.ndarray:
+    return np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-6
+
+
+#: Values checked at once by :func:`_rows_all`.
+_CHECK_BLOCK = 1 << 18
+
+
 def _safe_format(fmt: str) -> bool:
     return re.fullmatch(r"%\.\d{1,2}[fg]", fmt) is not None
 
@@ -965,7 +1054,7 @@ def _checked_signals(arrays: dict, frames: int, n_vars: int, need) -> dict[str, 
             continue
         name = key.split(".", 1)[1]
         need(isinstance(val, np.ndarray) and val.dtype.kind in "fiub", f"array {key!r} is not numeric")
-        need(bool(np.all(np.isfinite(val))), f"array {key!r} holds values that are not finite")
+        need(_rows_all(val, np.isfinite), f"array {key!r} holds values that are not finite")
         if name in _SIGNAL_SHAPES:
             dims = {"T": frames, "V": n_vars}
             want = tuple(dims[d] for d in _SIGNAL_SHAPES[name])
@@ -1054,25 +1143,29 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
         (samp_s, "samples"),
         (samp_d, "displacements"),
     ):
-        need(bool(np.all(np.isfinite(a))), f"{p}{label} are not all finite")
-        need(bool(np.all(np.abs(a) <= _MAX_FITTED)), f"{p}{label} are beyond ±{_MAX_FITTED:g}")
+        need(_rows_all(a, np.isfinite), f"{p}{label} are not all finite")
+        need(_rows_all(a, lambda b: np.abs(b) <= _MAX_FITTED), f"{p}{label} are beyond ±{_MAX_FITTED:g}")
     need(
         bool(np.all((knot_t >= pose_t[0] - 1e-6) & (knot_t <= pose_t[-1] + 1e-6))),
         f"{p}knot times lie outside the clip",
     )
     need(bool(np.all((knot_pose >= 0) & (knot_pose < K))), f"{p}knots name poses that do not exist")
     nseg = np.diff(knot_ptr) - 1
-    owner = np.repeat(np.arange(V), np.diff(samp_ptr))
-    need(bool(np.all((samp_s >= 0) & (samp_s <= nseg[owner]))), f"{p}samples lie outside their variable's segments")
-    same_var = owner[1:] == owner[:-1]
-    need(bool(np.all(np.diff(samp_s)[same_var] >= 0)), f"{p}a variable's samples are not in order")
+    # a variable at a time: no per-sample temporaries of a long clip
+    inside, ordered = True, True
+    for i in range(V):
+        s_i = samp_s[samp_ptr[i] : samp_ptr[i + 1]]
+        inside = inside and bool(np.all((s_i >= 0) & (s_i <= nseg[i])))
+        ordered = ordered and bool(np.all(np.diff(s_i) >= 0))
+    need(inside, f"{p}samples lie outside their variable's segments")
+    need(ordered, f"{p}a variable's samples are not in order")
     if kind == ROTATION:
         need(
-            bool(np.all(np.abs(np.linalg.norm(knot_v, axis=1) - 1) < 1e-6)),
+            _rows_all(knot_v, _unit_rows),
             f"{p}knot rotations are not unit quaternions",
         )
         need(
-            bool(np.all(np.abs(np.linalg.norm(samp_d, axis=1) - 1) < 1e-6)),
+            _rows_all(samp_d, _unit_rows),
             f"{p}displacement rotations are not unit quaternions",
         )
     try:

@@ -68,6 +68,31 @@ def _os_reason(err: OSError) -> str:
     return err.strerror or type(err).__name__
 
 
+_ZIP_MAGIC = b"PK\x03\x04"
+
+
+def open_zip(path: str, limit: int = MAX_INPUT_BYTES):
+    """An open binary file of ``path`` when it is a regular file of at most
+    ``limit`` bytes that begins like a zip (an NPZ document), to be read in
+    place rather than copied into memory whole; else None (then read it with
+    :func:`read_bytes`, which names what is wrong)."""
+    if path == STDIO:
+        return None
+    try:
+        f = open(path, "rb")
+    except OSError:
+        return None
+    try:
+        st = os.fstat(f.fileno())
+        if stat.S_ISREG(st.st_mode) and st.st_size <= limit and f.read(4) == _ZIP_MAGIC:
+            f.seek(0)
+            return f
+    except OSError:
+        pass
+    f.close()
+    return None
+
+
 def read_bytes(path: str, limit: int = MAX_INPUT_BYTES, probe=None, probe_bytes: int = 0) -> tuple[bytes, str]:
     """The whole content of ``path`` and the name to show for it.
 
@@ -158,8 +183,19 @@ def check_output(path: str, force: bool) -> None:
         raise UsageError(f"output directory {os.path.dirname(path) or parent!r} does not exist", source=path)
 
 
-def write_stdout(data: bytes) -> None:
-    """Write ``data`` to standard output as bytes and flush.
+def _pieces(data) -> list:
+    """``data`` (bytes-like, or a list of bytes-like pieces) as a list of pieces."""
+    return list(data) if isinstance(data, list | tuple) else [data]
+
+
+def _write_pieces(f, data) -> None:
+    for piece in _pieces(data):
+        f.write(piece)
+
+
+def write_stdout(data) -> None:
+    """Write ``data`` (bytes, or a list of bytes-like pieces written one
+    after the other) to standard output as bytes and flush.
 
     A real file descriptor is written with ``os.write`` until every byte is
     out: a reader that goes away mid-way (``| head -1``) then raises
@@ -170,7 +206,7 @@ def write_stdout(data: bytes) -> None:
         raise StaggeredError("standard output is closed: nothing can be written to it", source=STDOUT_NAME)
     buf = getattr(out, "buffer", None)
     if buf is None:  # a text-only replacement of stdout
-        out.write(data.decode("utf-8", errors="surrogateescape"))
+        out.write(b"".join(_pieces(data)).decode("utf-8", errors="surrogateescape"))
         out.flush()
         return
     out.flush()  # keep order with text already written
@@ -179,18 +215,20 @@ def write_stdout(data: bytes) -> None:
     except (OSError, ValueError, AttributeError):
         fd = None  # in memory (tests, batch stages)
     if fd is None:
-        buf.write(data)
+        _write_pieces(buf, data)
         buf.flush()
     else:
         buf.flush()
-        view = memoryview(data)
-        while view:
-            view = view[os.write(fd, view[: 1 << 20]) :]
+        for piece in _pieces(data):
+            view = memoryview(piece).cast("B")
+            while view:
+                view = view[os.write(fd, view[: 1 << 20]) :]
     out.flush()
 
 
-def write_atomic(path: str, data: bytes, force: bool) -> None:
-    """Write ``data`` to ``path`` so that it is either complete or not there.
+def write_atomic(path: str, data, force: bool) -> None:
+    """Write ``data`` (bytes, or a list of bytes-like pieces written one after
+    the other) to ``path`` so that it is either complete or not there.
 
     The bytes go to a temporary file in the same directory, are flushed and
     fsync'd, then renamed over ``path``.  Without ``force`` an existing
@@ -205,7 +243,7 @@ def write_atomic(path: str, data: bytes, force: bool) -> None:
     if _is_stream(path):
         try:
             with open(path, "wb") as f:
-                f.write(data)
+                _write_pieces(f, data)
         except OSError as err:
             raise StaggeredError(f"cannot write: {_os_reason(err)}", source=path) from err
         return
@@ -218,7 +256,7 @@ def write_atomic(path: str, data: bytes, force: bool) -> None:
         raise StaggeredError(f"cannot write: {_os_reason(err)}", source=path) from err
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            _write_pieces(f, data)
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())

@@ -46,21 +46,70 @@ def bake(
     frame_time = doc.frame_time if same_rate else 1.0 / fps
     if doc.kind == "bvh":
         src = doc.source
+        use_layer = ik and layers == "all" and bool(doc.constraints)
+        if not use_layer or (same_rate and not contact_layer.repairs_unseen(doc)):
+            channels = _channels_by_blocks(doc, t, layers, same_rate, ik_blend if use_layer else None)
+            if channels is not None:
+                return src.with_channels(channels, None if same_rate else frame_time)
         rot, tr = local_pose(doc, t, layers)
         if ik and layers == "all" and doc.constraints:
             rot = contact_layer.joint_layer(doc, rot, tr, t, ik_blend, same_rate)
         ref = reference_channels(doc, t)
         channels = channels_from_local(src.skeleton, rot, tr, ref)
+        del rot, tr
         if same_rate:
             # where the motion is the source's to rounding noise, write the
-            # source's own numbers (its -0 and its last digit included)
-            channels = np.where(np.abs(channels - ref) < _SAME_VALUE, ref, channels)
+            # source's own numbers (its -0 and its last digit included);
+            # in place, since channels is this function's own
+            near = channels - ref
+            np.abs(near, out=near)
+            np.copyto(channels, ref, where=near < _SAME_VALUE)
+            del near
         return src.with_channels(channels, None if same_rate else frame_time)
     src = doc.source
     pts = marker_points(doc, t, layers)
     if ik and layers == "all" and doc.constraints:
         pts = contact_layer.marker_layer(doc, pts, t, ik_blend, same_rate)
     return src.with_points(pts, 1.0 / frame_time)
+
+
+def _channels_by_blocks(
+    doc: Document, t: np.ndarray, layers: str, same_rate: bool, blend: float | None
+) -> np.ndarray | None:
+    """The baked channel values (N, C) of a BVH document at times ``t``, a
+    block of frames at a time (each frame is its own: the same numbers as
+    all at once), so that the pose of the whole clip never exists.
+
+    With a ``blend`` (same-rate, contact layer on), each block is also
+    compared with the source: where a constraint's chain changed, the
+    contact layer has work, which needs the whole pose: None is returned
+    (at the first such block) and the caller bakes all at once.
+    """
+    src = doc.source
+    sk = src.skeleton
+    if blend is not None:
+        contact_layer.check_joints(doc)
+    ref = reference_channels(doc, t)
+    channels = np.empty(ref.shape)
+    for lo in range(0, len(t), _BAKE_BLOCK):
+        hi = min(lo + _BAKE_BLOCK, len(t))
+        rot, tr = local_pose(doc, t[lo:hi], layers)
+        if blend is not None and contact_layer.disturbed_in(
+            doc, contact_layer.source_changed(src, rot, tr, lo), t[lo:hi], blend
+        ):
+            return None
+        block = channels_from_local(sk, rot, tr, ref[lo:hi])
+        if same_rate:
+            # where the motion is the source's to rounding noise, write the
+            # source's own numbers (its -0 and its last digit included)
+            block = np.where(np.abs(block - ref[lo:hi]) < _SAME_VALUE, ref[lo:hi], block)
+        channels[lo:hi] = block
+    return channels
+
+
+#: Frames baked at once by :func:`_channels_by_blocks` (a multiple of the
+#: evaluation's own block, so that it evaluates in the same batches).
+_BAKE_BLOCK = 8192
 
 
 def is_same_rate(doc: Document, fps: float | None) -> bool:

@@ -247,7 +247,7 @@ def up_axis(doc: Document) -> np.ndarray:
     """Unit up vector (3,) of a BVH document's figure (see :mod:`..contacts`)."""
     from ..contacts import up_direction
 
-    return up_direction(doc.source.world()[1], doc.source.figure_height())
+    return up_direction(doc.source.world_positions(), doc.source.figure_height())
 
 
 def heading_split(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -474,11 +474,15 @@ def extract(
     if problem is not None:
         raise DataError(f"frame rate {rate:g} Hz {problem}")
 
-    ev = signals.local_evidence(motion, smoothing)
     joints = contact_detection.contact_joints(motion, contact_joints)
     constraints = contact_detection.detect_contacts(
         motion, joints, min_duration=min_contact, tolerance=contact_tolerance
     )
+    variables = dense_variables(motion)
+    weights = placement.variable_weights(motion, variables)
+    if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
+        motion.release_world()
+    ev = signals.local_evidence(motion, smoothing)
     events = contact_events(constraints, T, rate, ev.breaks)
     boundaries = np.unique(np.array([f for _, f in events], dtype=int))
     contact = signals.contact_pulses(boundaries, T, rate, signals.DEFAULT_PULSE)
@@ -493,8 +497,8 @@ def extract(
     gate = np.ones(T, dtype=bool)
     if significance > 0:
         gate = signals.tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
-    variables = dense_variables(motion)
-    proxy = placement.proxy_from_dense(variables, placement.variable_weights(motion, variables))
+    proxy = placement.proxy_from_dense(variables, weights)
+    del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
     stride = max(1, int(round(rate / PLACEMENT_RATE)))
@@ -515,11 +519,7 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed)
     refine = refine_f * float(motion.frame_time)
-    # the fit below needs neither the placement's copies of the variables nor
-    # world positions: free them first (the largest arrays of a long clip)
-    del variables, proxy
-    if isinstance(motion, BvhMotion):
-        motion.release_world()
+    del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
     parameters = {
         "smoothing": smoothing,
@@ -533,7 +533,7 @@ def extract(
         "contact_pulse": signals.DEFAULT_PULSE,
     }
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
-    return from_motion(
+    doc = from_motion(
         motion,
         pose_t,
         refine,
@@ -544,3 +544,6 @@ def extract(
         signals=sigs,
         parameters=parameters,
     )
+    if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
+        motion.release_local()
+    return doc
