@@ -742,48 +742,77 @@ def restructure(
     ft = None if frame_t is None else np.asarray(frame_t, dtype=float)
     if dense is not None and (ft is None or dense.shape[:2] != (len(ft), V)):
         raise ValueError(f"dense must be (T, V, D) values at frame_t, got {np.shape(dense)}")
-    # samples of the segments to refit, per variable: (time, frame index or -1)
-    samples_t, samples_frame, samples_var, samples_seg, samples_u = [], [], [], [], []
-    # (not np.unique, which imports numpy.ma: 15 ms at a command's first call)
-    for i in np.flatnonzero(np.bincount(seg_var[refit], minlength=V)):
-        kt = knots.t[knots.of(i)]
-        old_kt = old.knots.t[old.knots.of(i)]
-        if ft is None:
-            st = np.unique(np.concatenate([sample_times(track, i), old_kt]))
-            frame = np.full(len(st), -1)
-        else:
-            st, frame = _with_knot_times(ft, old_kt)
-        seg, u, inside = _inside(kt, st)
-        gseg = seg + knots.seg_ptr[i]
-        take = inside & is_refit[gseg]
-        samples_t.append(st[take])
-        samples_frame.append(frame[take])
-        samples_var.append(np.full(int(take.sum()), i))
-        samples_seg.append(gseg[take])
-        samples_u.append(u[take])
     D = track.dim
-    flat_t = np.concatenate(samples_t) if samples_t else np.zeros(0)
-    flat_frame = np.concatenate(samples_frame) if samples_frame else np.zeros(0, dtype=int)
-    flat_var = np.concatenate(samples_var) if samples_var else np.zeros(0, dtype=int)
-    flat_seg = np.concatenate(samples_seg) if samples_seg else np.zeros(0, dtype=int)
-    u = np.concatenate(samples_u) if samples_u else np.zeros(0)
-    if dense is None:
-        values = evaluate_at(track, flat_var, flat_t, depth=1) if len(flat_t) else np.zeros((0, D))
-    else:
-        # the same numbers: evaluate and evaluate_at compute each value alike
-        # rows of the (T * V, D) view (a knot time between frames takes row 0, then its own value)
-        on_frame = flat_frame >= 0
-        rows = np.where(on_frame, flat_frame * V + flat_var, 0)
-        values = np.take(dense.reshape(-1, D), rows, axis=0)
-        off = np.flatnonzero(~on_frame)
-        if len(off):
-            values[off] = evaluate_at(track, flat_var[off], flat_t[off], depth=1)
-    # fit the changed segments together, numbered 0..len(refit)-1
+    # the changed segments are numbered 0..len(refit)-1 and fitted over groups
+    # of whole variables of about _FIT_GROUP samples (every segment's fit is
+    # its own, so grouping does not change a bit): the temporaries stay
+    # bounded however long the clip
     local = np.full(len(new_first), -1)
     local[refit] = np.arange(len(refit))
-    lseg = local[flat_seg]
-    p0, p3 = knots.v[new_first[refit]], knots.v[new_first[refit] + 1]
-    a_new, b_new, d_new = _fit_segments(track.kind, p0, p3, lseg, u, values, len(refit))
+    a_new = np.zeros((len(refit), 3))
+    b_new = np.zeros((len(refit), 3))
+    # (not np.unique, which imports numpy.ma: 15 ms at a command's first call)
+    todo = np.flatnonzero(np.bincount(seg_var[refit], minlength=V))
+    n_old = np.diff(old.knots.ptr)
+    if ft is None:
+        size = np.diff(old.samp_ptr)[todo] + n_old[todo]
+    else:
+        size = len(ft) + n_old[todo]
+    flat_var, flat_seg, fresh_s, d_new = [], [], [], []
+    for j0, j1 in _variable_groups(size, _FIT_GROUP):
+        # samples of the group's segments to refit: (time, frame index or -1)
+        samples_t, samples_frame, samples_var, samples_seg, samples_u = [], [], [], [], []
+        for i in todo[j0:j1]:
+            kt = knots.t[knots.of(i)]
+            old_kt = old.knots.t[old.knots.of(i)]
+            if ft is None:
+                st = np.unique(np.concatenate([sample_times(track, i), old_kt]))
+                frame = np.full(len(st), -1)
+            else:
+                st, frame = _with_knot_times(ft, old_kt)
+            seg, u, inside = _inside(kt, st)
+            gseg = seg + knots.seg_ptr[i]
+            take = inside & is_refit[gseg]
+            samples_t.append(st[take])
+            samples_frame.append(frame[take])
+            samples_var.append(np.full(int(take.sum()), i))
+            samples_seg.append(gseg[take])
+            samples_u.append(u[take])
+            del st, frame, seg, u, inside, gseg, take
+        g_t = np.concatenate(samples_t)
+        g_frame = np.concatenate(samples_frame)
+        g_var = np.concatenate(samples_var)
+        g_seg = np.concatenate(samples_seg)
+        g_u = np.concatenate(samples_u)
+        del samples_t, samples_frame, samples_var, samples_seg, samples_u
+        if dense is None:
+            values = evaluate_at(track, g_var, g_t, depth=1) if len(g_t) else np.zeros((0, D))
+        else:
+            # the same numbers: evaluate and evaluate_at compute each value alike
+            # rows of the (T * V, D) view (a knot time between frames takes row 0, then its own value)
+            on_frame = g_frame >= 0
+            rows = np.where(on_frame, g_frame * V + g_var, 0)
+            values = np.take(dense.reshape(-1, D), rows, axis=0)
+            del rows
+            off = np.flatnonzero(~on_frame)
+            if len(off):
+                values[off] = evaluate_at(track, g_var[off], g_t[off], depth=1)
+        del g_t, g_frame
+        r0 = int(np.searchsorted(refit, knots.seg_ptr[todo[j0]]))
+        r1 = int(np.searchsorted(refit, knots.seg_ptr[todo[j1 - 1] + 1]))
+        fs = new_first[refit[r0:r1]]
+        ga, gb, gd = _fit_segments(track.kind, knots.v[fs], knots.v[fs + 1], local[g_seg] - r0, g_u, values, r1 - r0)
+        del values
+        a_new[r0:r1], b_new[r0:r1] = ga, gb
+        flat_var.append(g_var)
+        flat_seg.append(g_seg)
+        fresh_s.append((g_seg - knots.seg_ptr[g_var]) + g_u)
+        d_new.append(gd)
+        del g_u, ga, gb, gd
+    flat_var = np.concatenate(flat_var) if flat_var else np.zeros(0, dtype=int)
+    flat_seg = np.concatenate(flat_seg) if flat_seg else np.zeros(0, dtype=int)
+    fresh_s = np.concatenate(fresh_s) if fresh_s else np.zeros(0)
+    d_new = np.concatenate(d_new) if d_new else np.zeros((0, D))
     tan_a = np.zeros((len(new_first), 3))
     tan_b = np.zeros((len(new_first), 3))
     kept = np.flatnonzero(kept_old >= 0)
@@ -800,7 +829,6 @@ def restructure(
     carry = new_of_sample >= 0
     carried_seg = new_of_sample[carry]
     carried_s = old.samp_s[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
-    fresh_s = (flat_seg - knots.seg_ptr[flat_var]) + u
     all_var = np.concatenate([old_owner[carry], flat_var])
     all_s = np.concatenate([carried_s, fresh_s])
     all_d = np.concatenate([old.samp_d[carry], d_new]) if len(all_var) else np.zeros((0, D))
