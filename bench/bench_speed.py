@@ -42,6 +42,7 @@ import json
 import os
 import re
 import resource
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -58,6 +59,8 @@ STAGGERED = str(BIN / "staggered")
 CLIP = "cmu_01_01_forward_jumps.bvh"
 WARM_UP = ROOT / "data" / "samples" / "march.bvh"
 SUCCESSION = "succession --joint @left-arm --offset 0.03 --power 1.5 --clamp"
+#: Steps whose peak memory is measured on each generated clip's document.
+STEP_MEMORY = (("cull", "cull --keep 30%"), ("succession", SUCCESSION))
 
 WHOLE_GOAL = 4.0
 START_GOAL = 1.5
@@ -144,14 +147,17 @@ def child(stage: str, src: str, dst: str) -> dict:
         if code:
             raise SystemExit(f"staggered {' '.join(args)}: exit {code}")
 
+    argv = shlex.split(stage)  # a step with its options: "cull --keep 30%"
     with tempfile.TemporaryDirectory() as tmp:
         doc = os.path.join(tmp, "warm.stag")
         run(["-q", "extract", str(WARM_UP), "-o", doc, "--force"])
-        if stage == "bake":
+        if argv[0] == "bake":
             run(["-q", "bake", doc, "-o", os.path.join(tmp, "warm.bvh"), "--force"])
+        elif argv[0] != "extract":
+            run(["-q", *argv, doc, "-o", os.path.join(tmp, "warm2.stag"), "--force"])
     base = _peak_mb()
     t, cpu = time.perf_counter(), time.process_time()
-    run(["-q", stage, src, "-o", dst, "--force"])
+    run(["-q", *argv, src, "-o", dst, "--force"])
     seconds, cpu = time.perf_counter() - t, time.process_time() - cpu
     return {"seconds": seconds, "cpu": cpu, "peak_mb": _peak_mb(), "base_mb": base}
 
@@ -228,6 +234,7 @@ def scaling(tmp: Path, factors: list[int], repeats: int) -> list[bool]:
 
     channels = read_bvh(MOCAP / CLIP).channels.shape[1]
     rows: dict[str, dict[int, dict]] = {"extract": {}, "bake": {}}
+    steps_mem: dict[str, dict[int, dict]] = {}
     for k in factors:
         clip = tmp / f"clip_x{k}.bvh"
         frames = repeat_clip(MOCAP / CLIP, k, clip)
@@ -244,6 +251,12 @@ def scaling(tmp: Path, factors: list[int], repeats: int) -> list[bool]:
                 f"  {stage:<7} x{k:<3} {frames:7d} frames  {wall:7.3f} s ({cpu:7.3f} s CPU)  peak {peak:6.0f} MB "
                 f"(base {base:.0f})  raw {raw_mb:6.1f} MB"
             )
+        # the steps' memory (one run each: their speed is measured in-process below)
+        for name, step in STEP_MEMORY:
+            r = _child(step, doc, tmp / f"clip_x{k}_{name}.stag")
+            steps_mem.setdefault(name, {})[k] = {"peak_mb": r["peak_mb"], "raw_mb": raw_mb}
+            print(f"  {name:<10} x{k:<3} {frames:7d} frames  {r['cpu']:7.3f} s CPU  peak {r['peak_mb']:6.0f} MB")
+            (tmp / f"clip_x{k}_{name}.stag").unlink(missing_ok=True)
         clip.unlink()
         out.unlink(missing_ok=True)
     ok = []
@@ -262,7 +275,7 @@ def scaling(tmp: Path, factors: list[int], repeats: int) -> list[bool]:
                 ratio <= goal,
             )
         )
-    for stage, by_k in rows.items():
+    for stage, by_k in list(rows.items()) + list(steps_mem.items()):
         for k, r in by_k.items():
             limit = MEMORY_FACTOR * r["raw_mb"] + MEMORY_EXTRA_MB
             ok.append(
