@@ -74,10 +74,12 @@ DEFAULT_REFINE_WINDOW = 0.25
 
 
 #: Largest clip extract takes, in values: frames x channels (BVH) or frames x
-#: markers x 3 (C3D).  Extraction needs about 160 bytes per BVH value
-#: (measured: 1.1 GB for 6.6 million), so this keeps it under about 1.4 GB;
-#: 8 million values are 23 minutes of a 31-joint skeleton at 60 Hz.
-MAX_EXTRACT_VALUES = 8_000_000
+#: markers x 3 (C3D).  Extraction works over blocks of frames and groups of
+#: variables, about 48 bytes per BVH value at an hour (measured: 1,978 MB for
+#: 41.5 million, cmu_01_01 repeated to 432,064 frames), so this keeps it
+#: under about 2.3 GB; 48 million values are one hour and 9 minutes of a
+#: 31-joint skeleton (96 channels) at 120 Hz.
+MAX_EXTRACT_VALUES = 48_000_000
 
 #: Largest values of the options that are durations, seconds: far beyond any
 #: use (the defaults are 0.025 to 0.25 s), and they bound the filters' cost.
