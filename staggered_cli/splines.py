@@ -289,7 +289,7 @@ def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     shape = np.broadcast_shapes(a.shape[1:], b.shape[1:])
     out = np.empty((4, *shape))
     t = np.empty(shape)
-    for row, ((i, j), *rest) in zip(out, _QMUL_TERMS):
+    for row, ((i, j), *rest) in zip(out, _QMUL_TERMS, strict=True):
         np.multiply(a[i], b[j], out=row)
         for sign, i, j in rest:
             np.multiply(a[i], b[j], out=t)
@@ -754,9 +754,8 @@ class _NormalEquations:
             lo, hi = offsets[s0], offsets[s1]
             sl = idx[lo:hi]
             segs = rows[s0:s1]
-            r, j = _residuals_t(
-                self.q0[:, segs], x[s0:s1].T, self.q3[:, segs], self.u[sl], self.values[:, sl], jacobian, local[lo:hi] - s0
-            )
+            q0, q3 = self.q0[:, segs], self.q3[:, segs]
+            r, j = _residuals_t(q0, x[s0:s1].T, q3, self.u[sl], self.values[:, sl], jacobian, local[lo:hi] - s0)
             starts = offsets[s0:s1] - lo
             cost[s0:s1] = np.add.reduceat(np.sum(r * r, axis=0), starts)
             if not jacobian:
