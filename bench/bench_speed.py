@@ -166,6 +166,14 @@ def _child(stage: str, src: Path, dst: Path) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def cull_25(doc):
+    """``staggered cull --keep 25%`` in-process: ranking and refit share the motion, as the command does."""
+    from staggered_cli.ops import cull
+
+    motion = cull.base_motion(doc)
+    return cull.keep_poses(doc, cull.choose(doc, keep="25%", motion=motion), motion)
+
+
 def child_steps(doc_path: str, repeats: int) -> dict:
     """CPU seconds, the best of ``repeats``, of the in-process succession
     down the left arm and ``cull --keep 25%`` on the document ``doc_path``,
@@ -173,12 +181,12 @@ def child_steps(doc_path: str, repeats: int) -> dict:
     import logging
 
     from staggered_cli.cli.common import read_document
-    from staggered_cli.ops import cull, timing
+    from staggered_cli.ops import timing
 
     logging.disable(logging.WARNING)  # the succession's warning about steep warps
     steps = {
         "succession": lambda d: timing.succession(d, 0.03, 1.5, joint="@left-arm", clamp=True),
-        "cull": lambda d: cull.keep_poses(d, cull.choose(d, keep="25%")),
+        "cull": cull_25,
     }
     out = {}
     for name, step in steps.items():

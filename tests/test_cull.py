@@ -57,28 +57,24 @@ def test_priorities_follow_the_poses_that_remain(cmu_walk):
 
 def test_ranking_and_refitting_evaluate_the_motion_once(monkeypatch):
     """choose and keep_poses both need the base layer's motion at the frame
-    times: keep_poses(doc, choose(doc)) evaluates it once per track, and
-    the document is the one a fresh keep_poses makes, byte for byte."""
+    times: given it (as the command gives it), they evaluate it once per
+    track, and the document is the one keep_poses makes on its own, byte
+    for byte."""
     from dataclasses import replace
 
     from staggered_cli.io.document import document_bytes
 
-    doc = replace(dev_document("cmu_02_01_walk.bvh"))  # a document no other test has culled
+    doc = replace(dev_document("cmu_02_01_walk.bvh"))
     calls = []
     real = cull.evaluate
     monkeypatch.setattr(cull, "evaluate", lambda *a, **k: calls.append(a[0].kind) or real(*a, **k))
-    mask = cull.choose(doc, keep="25%")
-    assert all(not d.flags.writeable for d in cull.base_motion(doc))  # shared: read-only
-    culled = cull.keep_poses(doc, mask)
+    motion = cull.base_motion(doc)
+    assert all(not d.flags.writeable for d in motion)  # shared: read-only
+    mask = cull.choose(doc, keep="25%", motion=motion)
+    culled = cull.keep_poses(doc, mask, motion)
     assert calls == [tr.kind for tr in doc.tracks]
-    fresh = cull.keep_poses(replace(doc), mask)  # another document: evaluated again
+    fresh = cull.keep_poses(doc, mask)  # without it: evaluated again
     assert len(calls) == 2 * len(doc.tracks)
-    assert not cull._BASE_MOTION  # let go once the refit used it
-    other = replace(doc)
-    cull.choose(other, keep="25%")
-    assert cull._BASE_MOTION
-    del other  # and when its document goes
-    assert not cull._BASE_MOTION
     assert document_bytes(*to_parts(culled), "npz") == document_bytes(*to_parts(fresh), "npz")
 
 

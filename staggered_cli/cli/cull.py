@@ -42,7 +42,7 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
     exactly N of them.  The displacement maps are refitted so that the baked
     motion is unchanged.
     """
-    from ..ops.cull import add_pose, choose, keep_poses
+    from ..ops.cull import add_pose, base_motion, choose, keep_poses
 
     check_output(output, force)
     times = [finite(t, "--add-time") for t in add_times]
@@ -51,6 +51,7 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
         raise click.UsageError("say what to keep: --keep, --interval, --select, or --add-time")
     doc = read_document(input_path)
     if choosing:
+        motion = base_motion(doc)  # ranking and refitting both read it: evaluated once
         mask = choose(
             doc,
             keep=keep,
@@ -58,8 +59,10 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
             select=int_list(select, "--select"),
             ignore_contacts=ignore_contacts,
             by=by,
+            motion=motion,
         )
-        doc = keep_poses(doc, mask)
+        doc = keep_poses(doc, mask, motion)
+        del motion  # as large as the clip's channels: not kept through the write
     for t in times:
         doc = add_pose(doc, t)
     write_document(doc, output, fmt, force)

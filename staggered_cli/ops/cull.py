@@ -8,7 +8,6 @@ change (SPEC invariant 2).
 from __future__ import annotations
 
 import logging
-import weakref
 
 import numpy as np
 
@@ -67,6 +66,7 @@ def choose(
     select: list[int] | None = None,
     ignore_contacts: bool = False,
     by: str = "error",
+    motion: tuple[np.ndarray, ...] | None = None,
 ) -> np.ndarray:
     """Mask (K,) of the poses to keep: exactly what was asked.
 
@@ -81,7 +81,8 @@ def choose(
 
     Unless ``ignore_contacts``, poses on contact changes take precedence
     inside the count: the others go first.  When fewer poses are there than
-    asked for, all are kept and a warning says so.
+    asked for, all are kept and a warning says so.  ``motion``: the
+    document's :func:`base_motion`, when the caller has it.
     """
     if by not in RANKINGS:
         raise UsageError(f"--by must be one of {', '.join(RANKINGS)}, got {by!r}")
@@ -120,47 +121,30 @@ def choose(
         out[ranked[: n - 2]] = True
         out[0] = out[-1] = True
         return out
-    return best_subset(doc, mask, n, contact)
+    return best_subset(doc, mask, n, contact, motion)
 
 
 def base_motion(doc: Document) -> tuple[np.ndarray, ...]:
     """The motion (T, V, D) of each track's base layer at the frame times
     (``evaluate(track, doc.frame_times, depth=1)``).
 
-    Ranking the poses (:func:`document_proxy`) and refitting the splines
-    around the removed ones (:func:`keep_poses`) both need it, and it is
-    most of their time: the last document's is kept (while the document
-    lives) so that ``keep_poses(doc, choose(doc, ...))`` evaluates it once,
-    and :func:`keep_poses` lets it go, as does the document's end (it is as
-    large as the motion).
+    Ranking the poses (:func:`choose`) and refitting the splines around the
+    removed ones (:func:`keep_poses`) both need it, and it is most of their
+    time: a caller that does both evaluates it once and gives it to each.
     """
-    hit = _BASE_MOTION.get("doc")
-    if hit is not None and hit[0]() is doc:
-        return hit[1]
     t = doc.frame_times
     dense = tuple(evaluate(tr, t, depth=1) for tr in doc.tracks)
-    for d in dense:  # shared between callers
+    for d in dense:  # shared between its callers
         d.flags.writeable = False
-    _BASE_MOTION["doc"] = (weakref.ref(doc, _forget_base_motion), dense)
     return dense
 
 
-#: The document :func:`base_motion` last evaluated (a weak reference) and its motion.
-_BASE_MOTION: dict = {}
-
-
-def _forget_base_motion(ref: weakref.ref) -> None:
-    """Drop the cached motion of the document behind ``ref`` (it is gone, or culled)."""
-    hit = _BASE_MOTION.get("doc")
-    if hit is not None and hit[0] is ref:
-        del _BASE_MOTION["doc"]
-
-
-def document_proxy(doc: Document) -> tuple[placement.Proxy, np.ndarray]:
+def document_proxy(doc: Document, motion: tuple[np.ndarray, ...] | None = None) -> tuple[placement.Proxy, np.ndarray]:
     """The proxy of the motion a document bakes to (without the contact
-    layer), and the extreme knot frames (K, V) of the proxy's variables."""
+    layer; ``motion``: its :func:`base_motion`, when at hand), and the
+    extreme knot frames (K, V) of the proxy's variables."""
     variables, ext = [], []
-    for tr, dense in zip(doc.tracks, base_motion(doc), strict=True):
+    for tr, dense in zip(doc.tracks, base_motion(doc) if motion is None else motion, strict=True):
         if tr.kind == ROTATION:
             dense = quat.unroll(dense, axis=0)
         variables.append((tr.kind, tr.names, tr.targets, dense))
@@ -170,7 +154,13 @@ def document_proxy(doc: Document) -> tuple[placement.Proxy, np.ndarray]:
     return proxy, ext_f[:, proxy.cols]
 
 
-def best_subset(doc: Document, mask: np.ndarray, n: int, last: np.ndarray | None = None) -> np.ndarray:
+def best_subset(
+    doc: Document,
+    mask: np.ndarray,
+    n: int,
+    last: np.ndarray | None = None,
+    motion: tuple[np.ndarray, ...] | None = None,
+) -> np.ndarray:
     """Mask (K,) of the ``n`` poses of ``mask`` (the first and last among
     them) whose spline layer fits the document's motion best.
 
@@ -188,7 +178,7 @@ def best_subset(doc: Document, mask: np.ndarray, n: int, last: np.ndarray | None
     M = len(c)
     if n >= M:
         return np.asarray(mask, dtype=bool).copy()
-    proxy, ext = document_proxy(doc)
+    proxy, ext = document_proxy(doc, motion)
     f = doc.pose_t / doc.frame_time
     lo = np.minimum(f[c, None], ext[c])
     hi = np.maximum(f[c, None], ext[c])
@@ -228,20 +218,18 @@ def best_subset(doc: Document, mask: np.ndarray, n: int, last: np.ndarray | None
     return out
 
 
-def keep_poses(doc: Document, mask: np.ndarray) -> Document:
-    """The document with only the poses in ``mask`` (K,), motion unchanged."""
+def keep_poses(doc: Document, mask: np.ndarray, motion: tuple[np.ndarray, ...] | None = None) -> Document:
+    """The document with only the poses in ``mask`` (K,), motion unchanged
+    (``motion``: the document's :func:`base_motion`, when the caller has it)."""
     mask = np.array(mask, dtype=bool)  # a copy: the caller's mask stays as it was
     mask[0] = mask[-1] = True
     if mask.all():
         return doc
     new_index = np.cumsum(mask) - 1
     tracks = []
-    for tr, dense in zip(doc.tracks, base_motion(doc), strict=True):
+    for tr, dense in zip(doc.tracks, base_motion(doc) if motion is None else motion, strict=True):
         knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
         tracks.append(restructure(tr, knots, frame_t=doc.frame_times, dense=dense))
-    hit = _BASE_MOTION.get("doc")
-    if hit is not None and hit[0]() is doc:
-        _forget_base_motion(hit[0])
     signals = dict(doc.signals)
     return reprioritized(
         doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
