@@ -260,13 +260,14 @@ def optimal_poses(
             best = np.full(G, np.inf)
             back = np.zeros(G, dtype=int)
             best[0] = 0.0
-            steps = np.arange(1, Wp + 1)
+            cost = price * discount
             for n in range(1, G):
                 k = min(n, Wp)
-                v = best[n - steps[:k]] + into[n, :k]
-                w = int(np.argmin(v))
-                best[n] = v[w] + price * discount[n]
-                back[n] = n - steps[w]
+                # best[n - 1], best[n - 2], ..., best[n - k]: a reversed view
+                v = best[n - k : n][::-1] + into[n, :k]
+                w = int(v.argmin())
+                best[n] = v[w] + cost[n]
+                back[n] = n - 1 - w
             walk = [G - 1]
             while walk[-1] > 0:
                 walk.append(int(back[walk[-1]]))
