@@ -47,6 +47,7 @@ import re
 
 import numpy as np
 
+from . import quat
 from .document import Constraint
 from .errors import UsageError
 from .motion import BvhMotion, MarkerMotion
@@ -123,7 +124,7 @@ def up_direction(points: np.ndarray, height: float) -> np.ndarray:
         lo = np.argmin(np.where(np.isfinite(coord), coord, np.inf), axis=1)
         hi = np.argmax(np.where(np.isfinite(coord), coord, -np.inf), axis=1)
         rows = np.arange(len(coord) - 1)
-        v = np.linalg.norm(np.diff(points, axis=0), axis=-1)  # (T-1, n)
+        v = quat.norm(np.diff(points, axis=0))  # (T-1, n)
         v_lo, v_hi = v[rows, lo[:-1]], v[rows, hi[:-1]]
         v_lo, v_hi = v_lo[np.isfinite(v_lo)], v_hi[np.isfinite(v_hi)]
         if len(v_lo) and len(v_hi) and np.median(v_hi) < np.median(v_lo):

@@ -154,7 +154,7 @@ def scaled_curvature(
     if T < 2 * span + 1:
         return out
     e = trail[span:] - trail[:-span]  # (T-span, n, 3): edge from f to f+span
-    length = np.linalg.norm(e, axis=-1)
+    length = quat.norm(e)
     ok = length > _ZERO_EDGE * scale
     if valid is not None:
         bad = np.cumsum(np.concatenate([np.zeros((1,) + valid.shape[1:]), ~valid]), axis=0)
@@ -162,11 +162,11 @@ def scaled_curvature(
     unit = e / np.where(ok, length, 1.0)[..., None]
     prev, nxt = unit[:-span], unit[span:]  # edges before and after each interior sample
     turn = nxt - prev
-    tlen = np.linalg.norm(turn, axis=-1)
+    tlen = quat.norm(turn)
     n = turn / np.where(tlen > 0, tlen, 1.0)[..., None]
     # both edges point away from the sample: -prev and nxt
-    k_prev = np.sum(n * -prev, axis=-1)
-    k_next = np.sum(n * nxt, axis=-1)
+    k_prev = quat.dot(n, -prev)
+    k_next = quat.dot(n, nxt)
     lp, ln = length[:-span], length[span:]
     good = ok[:-span] & ok[span:] & (tlen > 0)
     k = (lp * k_prev + ln * k_next) / np.where(good, lp + ln, 1.0)
@@ -463,7 +463,7 @@ def trail_measures(
     if T <= span:
         return kappa, np.zeros(n), np.zeros((T, n))
     ok = _span_valid(valid, span)
-    step = np.where(ok, np.linalg.norm(trail[span:] - trail[:-span], axis=-1), 0.0)  # (T-span, n)
+    step = np.where(ok, quat.norm(trail[span:] - trail[:-span]), 0.0)  # (T-span, n)
     arc = step.sum(axis=0) / span
     # each edge covers frames f .. f+span: spread its speed over them
     acc = np.zeros((T + 1, n))
@@ -518,7 +518,7 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
                     speed += sp[:, longer] @ lengths
                 else:
                     trail = dense[:, n, None, :]
-                    jump = np.linalg.norm(np.diff(trail, axis=0), axis=-1) > JUMP_FIGURE_HEIGHTS * height
+                    jump = quat.norm(np.diff(trail, axis=0)) > JUMP_FIGURE_HEIGHTS * height
                     k, arc, sp = trail_measures(trail, ~jump & ~breaks[:, None], span, rate, height)
                     weights[col + n] = float(arc[0])
                     speed += sp[:, 0]
@@ -528,7 +528,7 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
         height = float(motion.figure_height())
         _, _, _, dense = variables[0]  # gaps filled; samples in a gap are not used
         seen = np.all(np.isfinite(motion.points), axis=2)  # (T, M)
-        jump = np.linalg.norm(np.diff(dense, axis=0), axis=-1) > JUMP_FIGURE_HEIGHTS * height  # (T-1, M)
+        jump = quat.norm(np.diff(dense, axis=0)) > JUMP_FIGURE_HEIGHTS * height  # (T-1, M)
         kappa, weights, sp = trail_measures(dense, seen[:-1] & seen[1:] & ~jump, span, rate, height)
         speed = sp.sum(axis=1)
     if T > 1:

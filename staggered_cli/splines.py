@@ -563,7 +563,7 @@ def _residuals_t(
 
 def _wrap_rotation_vector(v: np.ndarray) -> np.ndarray:
     """The same rotation (..., 3) with angle at most pi, as ``quat.log`` gives it."""
-    t = np.linalg.norm(v, axis=-1, keepdims=True)
+    t = quat.norm(v)[..., None]
     over = t > np.pi
     return np.where(over, v * (1.0 - 2.0 * np.pi / np.where(over, t, 1.0)), v)
 

@@ -255,3 +255,21 @@ def test_slerp_stays_on_the_arc_property(a, b, u):
     total = quat.angle_between(a, b)
     assert abs(np.linalg.norm(s) - 1.0) < 1e-12
     assert quat.angle_between(a, s) + quat.angle_between(s, b) == pytest.approx(total, abs=1e-7)
+
+
+def test_dot_norm_cross_have_numpys_bits():
+    """The written-out forms give exactly numpy's numbers (the same order of
+    additions), including cancellation that a different order would show."""
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(500, 6, 3)) * 10.0 ** rng.integers(-8, 9, size=(500, 6, 1))
+    b = rng.normal(size=(500, 6, 3))
+    b[0, 0] = [1.0, 1e16, -1e16]  # (x0 + x1) + x2 = 0, x0 + (x1 + x2) = 1
+    ones = np.ones_like(a)
+    assert np.array_equal(quat.dot(ones, b), np.sum(ones * b, axis=-1))
+    assert quat.dot(ones, b)[0, 0] == 0.0
+    assert np.array_equal(quat.dot(a, b), np.sum(a * b, axis=-1))
+    assert np.array_equal(quat.norm(a), np.linalg.norm(a, axis=-1))
+    assert np.array_equal(quat.norm(a.astype(np.float32)), np.linalg.norm(a.astype(np.float32), axis=-1))
+    assert np.array_equal(quat.cross(a, b), np.cross(a, b))
+    q = rng.normal(size=(300, 4))
+    assert np.array_equal(quat.normalize(q), q / np.linalg.norm(q, axis=-1, keepdims=True))
