@@ -809,36 +809,91 @@ def restructure(
         fresh_s.append((g_seg - knots.seg_ptr[g_var]) + g_u)
         d_new.append(gd)
         del g_u, ga, gb, gd
-    flat_var = np.concatenate(flat_var) if flat_var else np.zeros(0, dtype=int)
-    flat_seg = np.concatenate(flat_seg) if flat_seg else np.zeros(0, dtype=int)
-    fresh_s = np.concatenate(fresh_s) if fresh_s else np.zeros(0)
-    d_new = np.concatenate(d_new) if d_new else np.zeros((0, D))
     tan_a = np.zeros((len(new_first), 3))
     tan_b = np.zeros((len(new_first), 3))
     kept = np.flatnonzero(kept_old >= 0)
     tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
     tan_a[refit], tan_b[refit] = a_new, b_new
-    # displacement samples: the kept segments' own (re-indexed), the refitted ones' new
-    old_owner = old.samp_var
-    old_local = np.floor(old.samp_s).astype(int)
-    old_local = np.minimum(old_local, np.maximum(np.diff(old.knots.ptr)[old_owner] - 2, 0))
-    old_gseg = old_local + old.knots.seg_ptr[old_owner]
-    old_to_new = np.full(int(old.knots.seg_ptr[-1]), -1)
+    samp_ptr, samp_s, samp_d = _assemble_samples(old, knots, kept_old, D, flat_var, flat_seg, fresh_s, d_new)
+    return track.with_base(Layer(knots, tan_a, tan_b, samp_ptr, samp_s, samp_d))
+
+
+#: Old displacement samples :func:`_assemble_samples` carries over at once.
+_CARRY_BLOCK = 1 << 18
+
+
+def _old_segments(old: Layer, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """The segment of ``old``'s displacement samples ``lo:hi``: within their
+    variable, and global."""
+    owner = np.searchsorted(old.samp_ptr, np.arange(lo, hi), side="right") - 1
+    local = np.floor(old.samp_s[lo:hi]).astype(int)
+    local = np.minimum(local, np.maximum(np.diff(old.knots.ptr)[owner] - 2, 0))
+    return local, local + old.knots.seg_ptr[owner]
+
+
+def _assemble_samples(
+    old: Layer,
+    knots: Knots,
+    kept_old: np.ndarray,
+    D: int,
+    flat_var: list[np.ndarray],
+    flat_seg: list[np.ndarray],
+    fresh_s: list[np.ndarray],
+    d_new: list[np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The displacement samples of the refitted layer (samp_ptr, samp_s, samp_d):
+    the kept segments' own (re-indexed) and the refitted ones' new (``flat_*``,
+    ``fresh_s``, ``d_new``: one piece per group of whole variables, in order),
+    in order of variable and knot coordinate.
+
+    Each segment's samples are all carried or all fresh and already in
+    order, and both sets are ordered by segment, so each sample's place is
+    its segment's offset plus its rank inside the segment: the samples are
+    written straight there, the carried ones a block at a time, with no
+    concatenated or sorted copy of the whole (the same arrays as a stable
+    sort by segment of both sets).  The pieces are consumed (emptied).
+    """
+    S_new, S_old = len(knots.seg_first), int(old.knots.seg_ptr[-1])
+    V = knots.n_vars
+    n_old = len(old.samp_s)
+    old_to_new = np.full(S_old, -1)
+    kept = np.flatnonzero(kept_old >= 0)
     old_to_new[kept_old[kept]] = kept
-    new_of_sample = old_to_new[old_gseg] if len(old_gseg) else np.zeros(0, dtype=int)
-    carry = new_of_sample >= 0
-    carried_seg = new_of_sample[carry]
-    carried_s = old.samp_s[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
-    all_var = np.concatenate([old_owner[carry], flat_var])
-    all_s = np.concatenate([carried_s, fresh_s])
-    all_d = np.concatenate([old.samp_d[carry], d_new]) if len(all_var) else np.zeros((0, D))
-    # in order of variable and knot coordinate: each segment's samples are
-    # already in order, and all carried or all fresh, so ordering by segment
-    # (stably) is enough
-    o = np.argsort(np.concatenate([carried_seg, flat_seg]), kind="stable")
-    samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(all_var, minlength=V))]).astype(int)
-    layer = Layer(knots, tan_a, tan_b, samp_ptr, all_s[o], all_d[o])
-    return track.with_base(layer)
+    # samples per old segment (to place the carried ones) and per new segment
+    per_old = np.zeros(S_old, dtype=int)
+    for lo in range(0, n_old, _CARRY_BLOCK):
+        per_old += np.bincount(_old_segments(old, lo, min(lo + _CARRY_BLOCK, n_old))[1], minlength=S_old)
+    per_new = np.zeros(S_new, dtype=int)
+    per_new[kept] = per_old[kept_old[kept]]
+    for seg in flat_seg:
+        per_new += np.bincount(seg, minlength=S_new)
+    first_new = np.concatenate([[0], np.cumsum(per_new)])
+    first_old = np.concatenate([[0], np.cumsum(per_old)])
+    N = int(first_new[-1])
+    samp_s = np.empty(N)
+    samp_d = np.empty((N, D))
+    counts = np.zeros(V, dtype=int)
+    for lo in range(0, n_old, _CARRY_BLOCK):
+        hi = min(lo + _CARRY_BLOCK, n_old)
+        local, gseg = _old_segments(old, lo, hi)
+        to = old_to_new[gseg]
+        carry = np.flatnonzero(to >= 0)
+        if len(carry) == 0:
+            continue
+        g, new_g = gseg[carry], to[carry]
+        at = first_new[new_g] + (carry + lo - first_old[g])
+        samp_s[at] = old.samp_s[lo:hi][carry] - local[carry] + (new_g - knots.seg_ptr[knots.seg_var[new_g]])
+        samp_d[at] = old.samp_d[lo:hi][carry]
+        counts += np.bincount(knots.seg_var[new_g], minlength=V)
+    while flat_seg:
+        seg, var, fs, d = flat_seg.pop(0), flat_var.pop(0), fresh_s.pop(0), d_new.pop(0)
+        at = first_new[seg] + (np.arange(len(seg)) - np.searchsorted(seg, seg, side="left"))
+        samp_s[at] = fs
+        samp_d[at] = d
+        counts += np.bincount(var, minlength=V)
+        del seg, var, fs, d, at
+    samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+    return samp_ptr, samp_s, samp_d
 
 
 def _with_knot_times(frame_t: np.ndarray, knot_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -96,6 +96,48 @@ def test_parts_round_trip_exactly():
         np.testing.assert_array_equal(a2[k], arrays[k])
 
 
+def test_restructure_places_samples_as_a_stable_sort_would(monkeypatch):
+    """The refitted layer's samples are written straight to their places:
+    kept segments' samples are the old ones, moved; every variable's samples
+    are in order of knot coordinate; and small blocks of carried samples and
+    groups of variables give the same bits as one block."""
+    from staggered_cli import representation
+    from staggered_cli.ops import cull
+
+    from .conftest import dev_document
+
+    doc = dev_document("cmu_02_01_walk.bvh")
+    mask = cull.choose(doc, keep="30%")
+    new_index = np.cumsum(mask) - 1
+    for tr in doc.tracks:
+        knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
+        whole = restructure(tr, knots, frame_t=doc.frame_times).base
+        with monkeypatch.context() as m:
+            m.setattr(representation, "_CARRY_BLOCK", 7)
+            m.setattr(representation, "_FIT_GROUP", 500)
+            small = restructure(tr, knots, frame_t=doc.frame_times).base
+        for name in ("tan_a", "tan_b", "samp_ptr", "samp_s", "samp_d"):
+            np.testing.assert_array_equal(getattr(small, name), getattr(whole, name), err_msg=name)
+        assert whole.samp_ptr[-1] == len(whole.samp_s) == len(whole.samp_d)
+        for i in range(tr.n_vars):
+            s_i = whole.samp_s[whole.samp_ptr[i] : whole.samp_ptr[i + 1]]
+            assert np.all(np.diff(s_i) >= 0), tr.names[i]
+        # a kept segment carries its samples over unchanged
+        kept_old = representation._unchanged_segments(tr.base.knots, knots)
+        for g in np.flatnonzero(kept_old >= 0)[:20]:
+            i = int(knots.seg_var[g])
+            old_s = tr.base.samp_s[tr.base.samples(i)]
+            new_s = whole.samp_s[whole.samples(i)]
+            o_local = kept_old[g] - tr.base.knots.seg_ptr[i]
+            n_local = g - knots.seg_ptr[i]
+            o_in = (old_s >= o_local) & (old_s < o_local + 1)
+            n_in = (new_s >= n_local) & (new_s < n_local + 1)
+            np.testing.assert_array_equal(new_s[n_in] - n_local, old_s[o_in] - o_local)
+            np.testing.assert_array_equal(
+                whole.samp_d[whole.samples(i)][n_in], tr.base.samp_d[tr.base.samples(i)][o_in]
+            )
+
+
 def test_restructure_reads_the_motion_it_is_given_to_the_bit():
     """With ``dense`` (the base motion at the frame times, as cull has it)
     restructure makes the same layer as when it evaluates the motion itself;
