@@ -636,10 +636,16 @@ def layer_at(
         s[idx] = seg + uu
     if int(seg_ptr[-1]) == 0:  # single-knot variables (a 1-frame clip): the knot itself
         return knots.v[knots.ptr[var]]
-    first = knots.seg_first
-    p0, p3 = knots.v[first], knots.v[first + 1]
+    # only the segments the queries meet are gathered (and the spline's
+    # per-segment work done for them): a block of frames meets a few of a
+    # long clip's segments, and all of them at every block would make a
+    # bake quadratic in the clip's length.  Each segment's numbers are its
+    # own, so they are the same bits as with every segment.
+    used, at = splines.compact_segments(gseg)
+    # the first knot of segment g of variable i is g + i (seg_ptr = ptr - i)
+    first = used + (np.searchsorted(seg_ptr, used, side="right") - 1)
     ops = kinds.ops_for(kind)
-    val = ops.spline_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
+    val = ops.spline_at(knots.v[first], layer.tan_a[used], layer.tan_b[used], knots.v[first + 1], at, u)
     single = np.diff(knots.ptr)[var] < 2
     if np.any(single):
         val[single] = knots.v[knots.ptr[var[single]]]
