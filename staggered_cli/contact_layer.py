@@ -122,7 +122,15 @@ def disturbed_in(doc: Document, changed: np.ndarray, t: np.ndarray, blend: float
     joint layer's candidates: its chain changed within its window.  Over
     consecutive blocks, the same test as :func:`joint_layer`'s first pass."""
     sk = doc.source.skeleton
+    if len(t) == 0:
+        return False
+    first, last = float(np.min(t)), float(np.max(t))
     for c in doc.constraints:
+        # a long clip has constraints all along it: only those whose window
+        # reaches the block's span are looked at frame by frame (else a
+        # bake block by block is quadratic in the clip's length)
+        if c.start - blend - 1e-9 > last or c.end + blend + 1e-9 < first:
+            continue
         window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
         if window.any() and _chain_changed(sk, changed, t, c, blend):
             return True
