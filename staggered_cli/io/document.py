@@ -859,8 +859,16 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
                 not text or not sha or hashlib.sha256(text).hexdigest() == sha,
                 "source.bvh is not the source file (its checksum differs from the manifest's)",
             )
+            # source.channels are the numbers of source.bvh as read (what
+            # extract stores), which the writer compares with
             source: BvhMotion | MarkerMotion = BvhMotion(
-                sk, ch, float(b["frame_time"]), str(b["frame_time_text"]), str(b["number_format"]), source=text
+                sk,
+                ch,
+                float(b["frame_time"]),
+                str(b["frame_time_text"]),
+                str(b["number_format"]),
+                source=text,
+                source_values=ch if text else None,
             )
             need(abs(source.frame_time - frame_time) < 1e-12, "frame_time disagrees with the bvh header")
             need(_safe_format(source.number_format), "number_format is not a plain numeric format")
