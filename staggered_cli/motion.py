@@ -294,13 +294,19 @@ def position_columns(skeleton: Skeleton) -> list[tuple[int, list[int]]]:
     return out
 
 
-def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray, unroll: bool = True) -> np.ndarray:
+def local_rotations_from_channels(
+    skeleton: Skeleton, channels: np.ndarray, unroll: bool = True, joints: np.ndarray | None = None
+) -> np.ndarray:
     """Local rotations (T, J, 4) of channel values (T, C), w first; each
     joint's track unrolled (without ``unroll``, each frame's own sign: for
-    sign-blind uses, which may then take any block of frames)."""
+    sign-blind uses, which may then take any block of frames).  ``joints``:
+    only these (the others are the identity)."""
     T = channels.shape[0]
     rot = quat.identity((T, skeleton.n_joints))
+    wanted = None if joints is None else {int(j) for j in joints}
     for j, cols, order in rotation_columns(skeleton):
+        if wanted is not None and j not in wanted:
+            continue
         if len(order) == 3:
             rot[:, j] = quat.from_euler(channels[:, cols], order)
         else:  # one or two rotation channels: compose what is there
@@ -311,7 +317,8 @@ def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray, unro
     # each joint's track on its own (the same signs as all at once): no
     # temporaries of the whole clip
     for j in range(skeleton.n_joints if unroll else 0):
-        rot[:, j] = quat.unroll(rot[:, j], axis=0)
+        if wanted is None or j in wanted:
+            rot[:, j] = quat.unroll(rot[:, j], axis=0)
     return rot
 
 
