@@ -153,3 +153,43 @@ def test_layer_at_equals_the_spline_over_every_segment(doc):
         first = knots.seg_first
         ref = kinds.ops_for(track.kind).spline_at(knots.v[first], layer.tan_a, layer.tan_b, knots.v[first + 1], gseg, u)
         np.testing.assert_array_equal(layer_at(track.kind, layer, var, tt, detail=False), ref)
+
+
+def test_to_euler_equals_the_full_matrix_and_argmin():
+    """to_euler computes five matrix entries and picks between two
+    candidates without stacking: the bits of the whole matrix and argmin."""
+    from staggered_cli import quat
+
+    rng = np.random.default_rng(5)
+    lock = quat.from_euler(
+        np.stack([rng.uniform(-180, 180, 300), np.full(300, -90.0), rng.uniform(-9, 9, 300)], -1), "ZXY"
+    )
+    q = quat.normalize(np.concatenate([rng.normal(size=(3000, 4)), lock]))
+    ref = rng.uniform(-500, 500, size=(len(q), 3))
+    for order in ("ZXY", "XYZ", "ZYX", "YZX"):
+        i, j, k = ("XYZ".index(c) for c in order)
+        m = quat.to_matrix(q)
+        sign = 1.0 if (j - i) % 3 == 1 else -1.0
+        cb = np.hypot(m[:, i, i], m[:, i, j])
+        got = quat.to_euler(q, order, ref)
+        free = cb >= 1e-7  # away from gimbal lock the angles are the matrix's
+        out = np.degrees(
+            np.stack(
+                [
+                    np.arctan2(-sign * m[:, j, k], m[:, k, k]),
+                    np.arctan2(np.clip(sign * m[:, i, k], -1.0, 1.0), cb),
+                    np.arctan2(-sign * m[:, i, j], m[:, i, i]),
+                ],
+                -1,
+            )
+        )
+        twin = out + np.array([180.0, 0.0, 180.0])
+        twin[:, 1] = 180.0 - out[:, 1]
+        cands = np.stack([out, twin])
+        cands = cands + 360.0 * np.round((ref - cands) / 360.0)
+        pick = np.argmin(np.sum((cands - ref) ** 2, axis=-1), axis=0)
+        want = np.where(pick[:, None] == 0, cands[0], cands[1])
+        np.testing.assert_array_equal(got[free], want[free])
+        np.testing.assert_allclose(
+            quat.from_euler(got, order), q * np.sign(np.sum(quat.from_euler(got, order) * q, -1))[:, None], atol=1e-9
+        )
