@@ -193,3 +193,26 @@ def test_to_euler_equals_the_full_matrix_and_argmin():
         np.testing.assert_allclose(
             quat.from_euler(got, order), q * np.sign(np.sum(quat.from_euler(got, order) * q, -1))[:, None], atol=1e-9
         )
+
+
+def test_stored_members_read_as_numpy_reads_them(doc, tmp_path):
+    """The NPZ reader reads stored members itself: the arrays np.load gives,
+    from bytes and from a file, and a flipped byte fails the CRC."""
+    import io
+
+    from staggered_cli.io.document import _read_npz, document_pieces, to_parts
+
+    data = b"".join(bytes(p) for p in document_pieces(*to_parts(doc), "npz"))
+    ref = np.load(io.BytesIO(data))
+    path = tmp_path / "doc.stag"
+    path.write_bytes(data)
+    with open(path, "rb") as fh:
+        for _, arrays in (_read_npz(data, "doc"), _read_npz(fh, "doc")):
+            assert set(arrays) == set(ref.files) - {"manifest.json"}
+            for k, v in arrays.items():
+                np.testing.assert_array_equal(v, ref[k])
+    at = data.index(doc.source.channels[len(doc.source.channels) // 2].tobytes())
+    bad = bytearray(data)
+    bad[at + 3] ^= 0x10
+    with pytest.raises(Exception, match="CRC"):
+        _read_npz(bytes(bad), "doc")
