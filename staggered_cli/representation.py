@@ -697,18 +697,26 @@ def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, 
         xb, xa = xs_all[kb], xs_all[ka]
         left = has & below & (xb > j)  # a sample of this segment at or before s
         right = has & (k < stop) & (xa < j + 1.0)  # a sample of this segment after s
+        del k, first, stop, below, has  # (a query's temporaries go as soon as they are used)
         x_lo = np.where(left, xb, j)  # the knots around each query, identity there
         x_hi = np.where(right, xa, j + 1.0)
-        lo_g, hi_g = layer.samp_d[kb], layer.samp_d[ka]
+        del xb, xa
+        lo_g = layer.samp_d[kb]
+        del kb
         lo_g[~left] = ident
+        hi_g = layer.samp_d[ka]
+        del ka
         hi_g[~right] = ident
+        del left, right
     else:
         x_lo, x_hi = j, j + 1.0
         lo_g = np.broadcast_to(ident, (len(q), D)).copy()
         hi_g = lo_g.copy()
     # computed in the queries' grouped order, then put in place
     w_g = np.clip((si - x_lo) / (x_hi - x_lo), 0.0, 1.0)
+    del si, j, x_lo, x_hi
     out_g = ops.interpolate(lo_g, hi_g, w_g)
+    del lo_g, hi_g, w_g
     if len(q) == N:
         out = np.empty((N, D))
     else:  # queries of no variable: the identity
