@@ -98,16 +98,40 @@ def check_joints(doc: Document) -> None:
             raise UsageError(f"constraint on unknown joint {c.joint!r}")
 
 
-def source_changed(src, rot: np.ndarray, tr: np.ndarray, lo: int) -> np.ndarray:
+def source_changed(src, rot: np.ndarray, tr: np.ndarray, lo: int, joints: np.ndarray | None = None) -> np.ndarray:
     """(n, J) bool: where local rotations ``rot`` (n, J, 4) and translations
     ``tr`` (n, J, 3) at source frames ``lo .. lo + n`` differ from the
     source's.  Sign-blind, so the source's rotations need no unrolling:
-    any block of frames is compared on its own."""
+    any block of frames is compared on its own.  ``joints`` (int): compare
+    these joints only (False elsewhere)."""
     sk = src.skeleton
     ch = src.channels[lo : lo + len(rot)]
-    src_rot = local_rotations_from_channels(sk, ch, unroll=False)
-    src_tr = local_translations_from_channels(sk, ch)
-    return (1.0 - np.abs(np.sum(rot * src_rot, axis=-1)) > 1e-12) | np.any(np.abs(tr - src_tr) > 1e-9, axis=-1)
+    if joints is None:
+        src_rot = local_rotations_from_channels(sk, ch, unroll=False)
+        src_tr = local_translations_from_channels(sk, ch)
+        return (1.0 - np.abs(np.sum(rot * src_rot, axis=-1)) > 1e-12) | np.any(np.abs(tr - src_tr) > 1e-9, axis=-1)
+    out = np.zeros(rot.shape[:2], dtype=bool)
+    if len(joints):
+        # each joint's numbers are its own: the same as over all joints
+        src_rot = local_rotations_from_channels(sk, ch, unroll=False, joints=joints)[:, joints]
+        src_tr = local_translations_from_channels(sk, ch)[:, joints]
+        out[:, joints] = (1.0 - np.abs(np.sum(rot[:, joints] * src_rot, axis=-1)) > 1e-12) | np.any(
+            np.abs(tr[:, joints] - src_tr) > 1e-9, axis=-1
+        )
+    return out
+
+
+def chain_joints(doc: Document) -> np.ndarray:
+    """The joints (increasing) from the root down to any constraint's joint:
+    the only ones :func:`disturbed_in` looks at."""
+    sk = doc.source.skeleton
+    seen: set[int] = set()
+    for c in doc.constraints:
+        j = sk.names.index(c.joint)
+        while j >= 0 and j not in seen:
+            seen.add(j)
+            j = int(sk.parents[j])
+    return np.array(sorted(seen), dtype=int)
 
 
 def repairs_unseen(doc: Document) -> bool:
@@ -122,7 +146,15 @@ def disturbed_in(doc: Document, changed: np.ndarray, t: np.ndarray, blend: float
     joint layer's candidates: its chain changed within its window.  Over
     consecutive blocks, the same test as :func:`joint_layer`'s first pass."""
     sk = doc.source.skeleton
+    if len(t) == 0:
+        return False
+    first, last = float(np.min(t)), float(np.max(t))
     for c in doc.constraints:
+        # a long clip has constraints all along it: only those whose window
+        # reaches the block's span are looked at frame by frame (else a
+        # bake block by block is quadratic in the clip's length)
+        if c.start - blend - 1e-9 > last or c.end + blend + 1e-9 < first:
+            continue
         window = (t >= c.start - blend - 1e-9) & (t <= c.end + blend + 1e-9)
         if window.any() and _chain_changed(sk, changed, t, c, blend):
             return True

@@ -43,10 +43,14 @@ class BvhMotion:
     source : bytes, the file it was read from (may be empty): writing keeps
         its layout and the text of every number that did not change
         (:func:`staggered_cli.io.bvh.bvh_bytes`).
+    source_values : (T0, C) float64 or None, the numbers of ``source``'s
+        MOTION block as the reader read them (the ``channels`` it was read
+        with): the writer compares with them instead of parsing the text
+        again.  None: the writer parses it.
 
-    ``frame_time_text``, ``number_format`` and ``source`` are the file's
-    layout: only the reader sets them and only the writer reads them;
-    operations carry them along with :meth:`with_channels`.
+    ``frame_time_text``, ``number_format``, ``source`` and ``source_values``
+    are the file's layout: only the reader sets them and only the writer
+    reads them; operations carry them along with :meth:`with_channels`.
     """
 
     skeleton: Skeleton
@@ -55,6 +59,7 @@ class BvhMotion:
     frame_time_text: str = ""
     number_format: str = "%.6f"
     source: bytes = field(default=b"", repr=False, compare=False)
+    source_values: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:
@@ -78,7 +83,7 @@ class BvhMotion:
         if frame_time is not None and frame_time != self.frame_time:
             changes.update(frame_time=float(frame_time), frame_time_text=f"{frame_time:.7f}".rstrip("0"))
         if not same_text:
-            changes["source"] = b""
+            changes.update(source=b"", source_values=None)
         fmt = self.number_format
         if decimals is not None and fmt[-1:] in ("f", "g"):
             changes["number_format"] = f"%.{max(int(fmt[2:-1]), decimals)}{fmt[-1]}"
@@ -289,13 +294,19 @@ def position_columns(skeleton: Skeleton) -> list[tuple[int, list[int]]]:
     return out
 
 
-def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray, unroll: bool = True) -> np.ndarray:
+def local_rotations_from_channels(
+    skeleton: Skeleton, channels: np.ndarray, unroll: bool = True, joints: np.ndarray | None = None
+) -> np.ndarray:
     """Local rotations (T, J, 4) of channel values (T, C), w first; each
     joint's track unrolled (without ``unroll``, each frame's own sign: for
-    sign-blind uses, which may then take any block of frames)."""
+    sign-blind uses, which may then take any block of frames).  ``joints``:
+    only these (the others are the identity)."""
     T = channels.shape[0]
     rot = quat.identity((T, skeleton.n_joints))
+    wanted = None if joints is None else {int(j) for j in joints}
     for j, cols, order in rotation_columns(skeleton):
+        if wanted is not None and j not in wanted:
+            continue
         if len(order) == 3:
             rot[:, j] = quat.from_euler(channels[:, cols], order)
         else:  # one or two rotation channels: compose what is there
@@ -306,7 +317,8 @@ def local_rotations_from_channels(skeleton: Skeleton, channels: np.ndarray, unro
     # each joint's track on its own (the same signs as all at once): no
     # temporaries of the whole clip
     for j in range(skeleton.n_joints if unroll else 0):
-        rot[:, j] = quat.unroll(rot[:, j], axis=0)
+        if wanted is None or j in wanted:
+            rot[:, j] = quat.unroll(rot[:, j], axis=0)
     return rot
 
 

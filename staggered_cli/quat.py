@@ -219,6 +219,26 @@ def _matrix(q: np.ndarray) -> np.ndarray:
     )
 
 
+#: Entry (row, column) of :func:`_matrix` of ``w, x, y, z``, each alone.
+_ENTRY = (
+    (
+        lambda w, x, y, z: 1 - 2 * (y * y + z * z),
+        lambda w, x, y, z: 2 * (x * y - w * z),
+        lambda w, x, y, z: 2 * (x * z + w * y),
+    ),
+    (
+        lambda w, x, y, z: 2 * (x * y + w * z),
+        lambda w, x, y, z: 1 - 2 * (x * x + z * z),
+        lambda w, x, y, z: 2 * (y * z - w * x),
+    ),
+    (
+        lambda w, x, y, z: 2 * (x * z - w * y),
+        lambda w, x, y, z: 2 * (y * z + w * x),
+        lambda w, x, y, z: 1 - 2 * (x * x + y * y),
+    ),
+)
+
+
 def to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions."""
     return _matrix(normalize(q))
@@ -241,15 +261,18 @@ def to_euler(q: np.ndarray, order: str, reference_deg: np.ndarray | None = None)
     """
     q = normalize(q)
     i, j, k = (_AXIS[c] for c in order)
-    m = _matrix(q)
+    # the five entries of the rotation matrix that are needed (as _matrix
+    # computes them: the same bits, without the other four)
+    w, x, y, z = (q[..., n] for n in range(4))
+    m_ik, m_ii, m_ij, m_jk, m_kk = (_ENTRY[r][col](w, x, y, z) for r, col in ((i, k), (i, i), (i, j), (j, k), (k, k)))
     # R = R_i(a) R_j(b) R_k(c); parity sign of the axis permutation
     sign = 1.0 if (j - i) % 3 == 1 else -1.0
-    sb = np.clip(sign * m[..., i, k], -1.0, 1.0)
+    sb = np.clip(sign * m_ik, -1.0, 1.0)
     # cos(b) from the other entries of the row keeps b accurate near +-90 deg
-    cb = np.hypot(m[..., i, i], m[..., i, j])
+    cb = np.hypot(m_ii, m_ij)
     b = np.arctan2(sb, cb)
-    a = np.arctan2(-sign * m[..., j, k], m[..., k, k])
-    c = np.arctan2(-sign * m[..., i, j], m[..., i, i])
+    a = np.arctan2(-sign * m_jk, m_kk)
+    c = np.arctan2(-sign * m_ij, m_ii)
     # cos(b) below ~1e-7 means the outer angles are numerically undetermined
     locked = cb < 1e-7
     # at lock, R_i(a) R_j(±90) R_k(c) depends on a ± c only: read it off the
@@ -268,8 +291,11 @@ def to_euler(q: np.ndarray, order: str, reference_deg: np.ndarray | None = None)
     ref = np.asarray(reference_deg, dtype=float)
     twin = out + np.array([180.0, 0.0, 180.0])
     twin[..., 1] = 180.0 - out[..., 1]
-    cands = np.stack([out, twin], axis=0)
-    cands = cands + 360.0 * np.round((ref - cands) / 360.0)
-    dist = np.sum((cands - ref) ** 2, axis=-1)
-    pick = np.argmin(dist, axis=0)
-    return np.where(pick[..., None] == 0, cands[0], cands[1])
+    # each candidate by whole turns to the reference; the nearer one, the
+    # first on a tie (and, like argmin, a NaN distance counts as the nearest)
+    near = out + 360.0 * np.round((ref - out) / 360.0)
+    twin += 360.0 * np.round((ref - twin) / 360.0)
+    d_near = np.sum((near - ref) ** 2, axis=-1)
+    d_twin = np.sum((twin - ref) ** 2, axis=-1)
+    take_twin = (d_twin < d_near) | (np.isnan(d_twin) & ~np.isnan(d_near))
+    return np.where(take_twin[..., None], twin, near)

@@ -636,10 +636,16 @@ def layer_at(
         s[idx] = seg + uu
     if int(seg_ptr[-1]) == 0:  # single-knot variables (a 1-frame clip): the knot itself
         return knots.v[knots.ptr[var]]
-    first = knots.seg_first
-    p0, p3 = knots.v[first], knots.v[first + 1]
+    # only the segments the queries meet are gathered (and the spline's
+    # per-segment work done for them): a block of frames meets a few of a
+    # long clip's segments, and all of them at every block would make a
+    # bake quadratic in the clip's length.  Each segment's numbers are its
+    # own, so they are the same bits as with every segment.
+    used, at = splines.compact_segments(gseg)
+    # the first knot of segment g of variable i is g + i (seg_ptr = ptr - i)
+    first = used + (np.searchsorted(seg_ptr, used, side="right") - 1)
     ops = kinds.ops_for(kind)
-    val = ops.spline_at(p0, layer.tan_a, layer.tan_b, p3, gseg, u)
+    val = ops.spline_at(knots.v[first], layer.tan_a[used], layer.tan_b[used], knots.v[first + 1], at, u)
     single = np.diff(knots.ptr)[var] < 2
     if np.any(single):
         val[single] = knots.v[knots.ptr[var[single]]]
@@ -660,31 +666,63 @@ def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, 
     N = len(s)
     D = ops.dim
     ident = ops.identity()
-    lo_val = np.broadcast_to(ident, (N, D)).copy()
-    hi_val = lo_val.copy()
-    w = np.zeros(N)
+    # per variable only the search among its own samples; the rest is done
+    # for all queries at once (the same numbers, one query at a time)
+    q = order[: bounds[-1]]  # the queries, grouped by variable
+    k = np.zeros(len(q), dtype=np.intp)  # the first sample of the variable after s
+    first = np.zeros(len(q), dtype=np.intp)  # the variable's first sample
+    stop = np.zeros(len(q), dtype=np.intp)  # one past its last
+    ptr = layer.samp_ptr
+    xs_all = layer.samp_s
     for i in range(layer.knots.n_vars):
-        idx = order[bounds[i] : bounds[i + 1]]
-        if len(idx) == 0:
+        a, b = int(bounds[i]), int(bounds[i + 1])
+        if a == b:
             continue
-        sl = layer.samples(i)
-        xs, ys = layer.samp_s[sl], layer.samp_d[sl]
-        si = s[idx]
-        j = np.floor(si)
-        x_lo, x_hi = j, j + 1.0  # the knots around each query, identity there
-        if len(xs):
-            k = np.searchsorted(xs, si, side="right")
-            below = k > 0
-            kb = np.maximum(k - 1, 0)
-            left = below & (xs[kb] > j)  # a sample of this segment at or before s
-            x_lo = np.where(left, xs[kb], x_lo)
-            lo_val[idx[left]] = ys[kb[left]]
-            ka = np.minimum(k, len(xs) - 1)
-            right = (k < len(xs)) & (xs[ka] < j + 1.0)  # a sample of this segment after s
-            x_hi = np.where(right, xs[ka], x_hi)
-            hi_val[idx[right]] = ys[ka[right]]
-        w[idx] = np.clip((si - x_lo) / (x_hi - x_lo), 0.0, 1.0)
-    return ops.interpolate(lo_val, hi_val, w)
+        lo, hi = int(ptr[i]), int(ptr[i + 1])
+        if hi > lo:
+            k[a:b] = np.searchsorted(xs_all[lo:hi], s[order[a:b]], side="right") + lo
+        else:
+            k[a:b] = lo
+        first[a:b] = lo
+        stop[a:b] = hi
+    si = s[q]
+    j = np.floor(si)
+    below = k > first
+    has = stop > first
+    kb = np.where(below, k - 1, first)
+    ka = np.minimum(k, stop - 1)
+    if len(layer.samp_s):
+        np.copyto(kb, 0, where=~has)  # no sample at all: any index (masked below)
+        np.copyto(ka, 0, where=~has)
+        xb, xa = xs_all[kb], xs_all[ka]
+        left = has & below & (xb > j)  # a sample of this segment at or before s
+        right = has & (k < stop) & (xa < j + 1.0)  # a sample of this segment after s
+        del k, first, stop, below, has  # (a query's temporaries go as soon as they are used)
+        x_lo = np.where(left, xb, j)  # the knots around each query, identity there
+        x_hi = np.where(right, xa, j + 1.0)
+        del xb, xa
+        lo_g = layer.samp_d[kb]
+        del kb
+        lo_g[~left] = ident
+        hi_g = layer.samp_d[ka]
+        del ka
+        hi_g[~right] = ident
+        del left, right
+    else:
+        x_lo, x_hi = j, j + 1.0
+        lo_g = np.broadcast_to(ident, (len(q), D)).copy()
+        hi_g = lo_g.copy()
+    # computed in the queries' grouped order, then put in place
+    w_g = np.clip((si - x_lo) / (x_hi - x_lo), 0.0, 1.0)
+    del si, j, x_lo, x_hi
+    out_g = ops.interpolate(lo_g, hi_g, w_g)
+    del lo_g, hi_g, w_g
+    if len(q) == N:
+        out = np.empty((N, D))
+    else:  # queries of no variable: the identity
+        out = np.broadcast_to(ident, (N, D)).copy()
+    out[q] = out_g
+    return out
 
 
 # --- structure ----------------------------------------------------------------

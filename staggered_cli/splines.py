@@ -638,13 +638,13 @@ def rotation_eval_at(
     out = np.empty((u.shape[0], 4))
     for lo in range(0, u.shape[0], _CHUNK):
         sg = seg[lo : lo + _CHUNK]
-        used, idx = _compact(sg)
+        used, idx = compact_segments(sg)
         q, _ = _curve_t(q0[used].T, a[used].T, b[used].T, q3[used].T, u[lo : lo + _CHUNK], False, idx)
         out[lo : lo + _CHUNK] = q.T
     return quat.normalize(out)
 
 
-def _compact(seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def compact_segments(seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The segments ``used`` that ``seg`` meets (increasing) and each
     sample's place among them, ``used[idx] == seg`` (np.unique's answer
     without its import of numpy.ma, about 18 ms a process)."""

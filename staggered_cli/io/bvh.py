@@ -90,7 +90,7 @@ def parse_bvh(data: bytes, max_values: int | None = None) -> BvhMotion:
     channels, frame_time, frame_time_text, fmt = _parse_motion(
         data, motion_at, sum(len(c) for c in skeleton.channels), header_lines, max_values
     )
-    return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt, source=source)
+    return BvhMotion(skeleton, channels, frame_time, frame_time_text, fmt, source=source, source_values=channels)
 
 
 def check_header(head: bytes) -> None:
@@ -646,7 +646,7 @@ def _in_source_layout(motion: BvhMotion) -> list | None:
     head = bom + data[:at] + b"".join(lines)
     if T == 0:
         return [head]
-    kept = _kept_numbers(data, pos, ch, motion.number_format)
+    kept = _kept_numbers(data, pos, ch, motion.number_format, motion.source_values)
     if kept is None:  # another frame count (a resampled bake): the source's line ending
         newline = lines[2][len(lines[2].rstrip(b"\r\n")) :] or b"\n"
         row = " ".join([motion.number_format] * C) + newline.decode("ascii")
@@ -660,20 +660,29 @@ _WRITE_CHUNK_BYTES = 1 << 20
 _SPACES = re.compile(rb"(\s+)")
 
 
-def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> list[bytes] | None:
+def _kept_numbers(
+    data: bytes, start: int, channels: np.ndarray, fmt: str, source_values: np.ndarray | None = None
+) -> list[bytes] | None:
     """The source's MOTION block ``data[start:]``, in pieces to join, with
     every number that is not the value at its place in ``channels`` (T, C)
     printed with ``fmt`` and every other token and all the white space kept;
-    None unless the block holds exactly T * C plain numbers."""
+    None unless the block holds exactly T * C plain numbers.
+
+    ``source_values``: the block's numbers as the reader read them (frame by
+    frame, in the order of the text), so that they need not be parsed again.
+    """
     if data.find(b"_", start) >= 0 or not _is_ascii(data, start):
         return None
     T, C = channels.shape
     changed_rows = None
     if channels.size and _NON_SPACE.search(data, start) is not None:
-        # the reader's fast parse: when no number changed (a round trip) the
-        # block is the source's, and no token need be looked at; with one
-        # frame a line and no blank line, only the lines that changed are
-        found = _changed_rows(data, start, channels)
+        # when no number changed (a round trip) the block is the source's,
+        # and no token need be looked at; with one frame a line and no blank
+        # line, only the lines that changed are
+        if source_values is not None:
+            found = _changed_from_values(channels, source_values)
+        else:
+            found = _changed_rows(data, start, channels)
         if found is not None:
             rows, values = found
             if not rows.any():
@@ -682,10 +691,42 @@ def _kept_numbers(data: bytes, start: int, channels: np.ndarray, fmt: str) -> li
             if lines == T:
                 changed_rows = rows
     if changed_rows is not None:
-        kept = _replace_tokens(data, start, channels, fmt, changed_rows, values)
+        # values the reader read need the count of each piece kept whole
+        # checked (the parse here checks it: one frame a line)
+        kept = _replace_tokens(data, start, channels, fmt, changed_rows, values, count_kept=source_values is not None)
         if kept is not None:
             return kept
     return _replace_tokens(data, start, channels, fmt)
+
+
+def _changed_from_values(channels: np.ndarray, source_values: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_changed_rows` from the numbers the reader read (T, C), without
+    parsing: which frames of ``channels`` differ, and those numbers; None
+    when they are not T frames of C numbers."""
+    if source_values.shape != channels.shape:
+        return None
+    T = len(channels)
+    rows = np.empty(T, dtype=bool)
+    step = max(1, _COMPARE_VALUES // max(channels.shape[1], 1))
+    for lo in range(0, T, step):  # a block at a time: no temporaries of the clip
+        np.any(channels[lo : lo + step] != source_values[lo : lo + step], axis=1, out=rows[lo : lo + step])
+    return rows, source_values
+
+
+#: Values compared at once by :func:`_changed_from_values`.
+_COMPARE_VALUES = 1 << 18
+#: The bytes that separate numbers (what ``\\s`` of :data:`_SPACES` matches).
+_IS_SPACE = np.zeros(256, dtype=bool)
+_IS_SPACE[list(b" \t\n\r\f\v")] = True
+
+
+def _count_tokens(data: bytes, a: int, b: int) -> int:
+    """The number of white-space separated tokens in ``data[a:b]``, counted
+    on the bytes (no token objects)."""
+    if b <= a:
+        return 0
+    space = _IS_SPACE[np.frombuffer(data, dtype=np.uint8, count=b - a, offset=a)]
+    return int(not space[0]) + int(np.count_nonzero(space[:-1] > space[1:]))
 
 
 def _changed_rows(data: bytes, start: int, channels: np.ndarray) -> tuple[np.ndarray, _SourceRows | None] | None:
@@ -757,11 +798,14 @@ def _replace_tokens(
     fmt: str,
     changed_rows: np.ndarray | None = None,
     source: np.ndarray | _SourceRows | None = None,
+    count_kept: bool = False,
 ) -> list[bytes] | None:
     """:func:`_kept_numbers` a piece of :data:`_WRITE_CHUNK_BYTES` at a time.
     With ``changed_rows`` (T,) and the ``source`` values (T, C) (the block is
     one frame a line), pieces without a changed frame are kept whole and the
-    others' numbers are not parsed again."""
+    others' numbers are not parsed again.  ``count_kept``: a piece kept whole
+    must also hold its lines' C numbers each, in all (else None: the lines
+    are not the frames)."""
     flat = channels.ravel()
     C = channels.shape[1]
     out: list = []
@@ -771,6 +815,8 @@ def _replace_tokens(
         if changed_rows is not None:
             n_rows = data.count(b"\n", a, b) + (data[b - 1 : b] != b"\n")
             if not changed_rows[row : row + n_rows].any():
+                if count_kept and _count_tokens(data, a, b) != n_rows * C:
+                    return None
                 out.append(view[a:b])
                 row, k = row + n_rows, k + n_rows * C
                 continue

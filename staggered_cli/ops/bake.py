@@ -87,15 +87,17 @@ def _channels_by_blocks(
     """
     src = doc.source
     sk = src.skeleton
+    chains = None
     if blend is not None:
         contact_layer.check_joints(doc)
+        chains = contact_layer.chain_joints(doc)  # the joints the test of a block looks at
     ref = reference_channels(doc, t)
     channels = np.empty(ref.shape)
     for lo in range(0, len(t), _BAKE_BLOCK):
         hi = min(lo + _BAKE_BLOCK, len(t))
         rot, tr = local_pose(doc, t[lo:hi], layers)
         if blend is not None and contact_layer.disturbed_in(
-            doc, contact_layer.source_changed(src, rot, tr, lo), t[lo:hi], blend
+            doc, contact_layer.source_changed(src, rot, tr, lo, chains), t[lo:hi], blend
         ):
             return None
         block = channels_from_local(sk, rot, tr, ref[lo:hi])
