@@ -758,8 +758,54 @@ def restructure(
         size = np.diff(old.samp_ptr)[todo] + n_old[todo]
     else:
         size = len(ft) + n_old[todo]
-    flat_var, flat_seg, fresh_s, d_new = [], [], [], []
-    for j0, j1 in _variable_groups(size, _FIT_GROUP):
+    # the new samples are written in their final order (by variable, then
+    # knot coordinate) into arrays allocated once, range of variables by
+    # range: each fit group's variables with their carried samples, and the
+    # variables in between (nothing refitted) in groups of _FIT_GROUP old
+    # samples.  The bound (old samples + the refitted variables' candidate
+    # times) is allocated but the pages past the end are never touched.
+    old_to_new = np.full(int(old.knots.seg_ptr[-1]), -1)
+    kept = np.flatnonzero(kept_old >= 0)
+    old_to_new[kept_old[kept]] = kept
+    bound = int(old.samp_ptr[-1]) + int(np.sum(size))
+    out_s = np.empty(bound)
+    out_d = np.empty((bound, D))
+    counts = np.zeros(V, dtype=int)
+    w = 0
+
+    def emit(i0: int, i1: int, g_var, g_seg, g_s, g_d) -> None:
+        # the old samples of variables i0..i1-1 whose segment is kept, and
+        # the fresh ones, in order of (new) segment: each segment's samples
+        # are already in order, and all carried or all fresh, so ordering by
+        # segment (stably) is enough
+        nonlocal w
+        o0, o1 = int(old.samp_ptr[i0]), int(old.samp_ptr[i1])
+        ss = old.samp_s[o0:o1]
+        owner = np.repeat(np.arange(i0, i1), np.diff(old.samp_ptr[i0 : i1 + 1]))
+        old_local = np.floor(ss).astype(int)
+        old_local = np.minimum(old_local, np.maximum(n_old[owner] - 2, 0))
+        new_of_sample = old_to_new[old_local + old.knots.seg_ptr[owner]] if len(ss) else np.zeros(0, dtype=int)
+        carry = new_of_sample >= 0
+        carried_seg = new_of_sample[carry]
+        carried_s = ss[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
+        del old_local, new_of_sample
+        o = np.argsort(np.concatenate([carried_seg, g_seg]), kind="stable")
+        n = len(o)
+        out_s[w : w + n] = np.concatenate([carried_s, g_s])[o]
+        out_d[w : w + n] = np.concatenate([old.samp_d[o0:o1][carry], g_d])[o]
+        counts[i0:i1] = np.bincount(np.concatenate([owner[carry], g_var]) - i0, minlength=i1 - i0)
+        w += n
+
+    none_i, none_f, none_d = np.zeros(0, dtype=int), np.zeros(0), np.zeros((0, D))
+    old_counts = np.diff(old.samp_ptr)
+
+    def emit_carried(i0: int, i1: int) -> None:
+        for c0, c1 in _variable_groups(old_counts[i0:i1], _FIT_GROUP):
+            emit(i0 + c0, i0 + c1, none_i, none_i, none_f, none_d)
+
+    done = 0  # variables emitted so far
+    groups = _variable_groups(size, _FIT_GROUP)
+    for j0, j1 in groups:
         # samples of the group's segments to refit: (time, frame index or -1)
         samples_t, samples_frame, samples_var, samples_seg, samples_u = [], [], [], [], []
         for i in todo[j0:j1]:
@@ -804,40 +850,18 @@ def restructure(
         ga, gb, gd = _fit_segments(track.kind, knots.v[fs], knots.v[fs + 1], local[g_seg] - r0, g_u, values, r1 - r0)
         del values
         a_new[r0:r1], b_new[r0:r1] = ga, gb
-        flat_var.append(g_var)
-        flat_seg.append(g_seg)
-        fresh_s.append((g_seg - knots.seg_ptr[g_var]) + g_u)
-        d_new.append(gd)
-        del g_u, ga, gb, gd
-    flat_var = np.concatenate(flat_var) if flat_var else np.zeros(0, dtype=int)
-    flat_seg = np.concatenate(flat_seg) if flat_seg else np.zeros(0, dtype=int)
-    fresh_s = np.concatenate(fresh_s) if fresh_s else np.zeros(0)
-    d_new = np.concatenate(d_new) if d_new else np.zeros((0, D))
+        i0, i1 = int(todo[j0]), int(todo[j1 - 1]) + 1
+        emit_carried(done, i0)
+        emit(i0, i1, g_var, g_seg, (g_seg - knots.seg_ptr[g_var]) + g_u, gd)
+        done = i1
+        del g_var, g_seg, g_u, ga, gb, gd
+    emit_carried(done, V)
     tan_a = np.zeros((len(new_first), 3))
     tan_b = np.zeros((len(new_first), 3))
-    kept = np.flatnonzero(kept_old >= 0)
     tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
     tan_a[refit], tan_b[refit] = a_new, b_new
-    # displacement samples: the kept segments' own (re-indexed), the refitted ones' new
-    old_owner = old.samp_var
-    old_local = np.floor(old.samp_s).astype(int)
-    old_local = np.minimum(old_local, np.maximum(np.diff(old.knots.ptr)[old_owner] - 2, 0))
-    old_gseg = old_local + old.knots.seg_ptr[old_owner]
-    old_to_new = np.full(int(old.knots.seg_ptr[-1]), -1)
-    old_to_new[kept_old[kept]] = kept
-    new_of_sample = old_to_new[old_gseg] if len(old_gseg) else np.zeros(0, dtype=int)
-    carry = new_of_sample >= 0
-    carried_seg = new_of_sample[carry]
-    carried_s = old.samp_s[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
-    all_var = np.concatenate([old_owner[carry], flat_var])
-    all_s = np.concatenate([carried_s, fresh_s])
-    all_d = np.concatenate([old.samp_d[carry], d_new]) if len(all_var) else np.zeros((0, D))
-    # in order of variable and knot coordinate: each segment's samples are
-    # already in order, and all carried or all fresh, so ordering by segment
-    # (stably) is enough
-    o = np.argsort(np.concatenate([carried_seg, flat_seg]), kind="stable")
-    samp_ptr = np.concatenate([[0], np.cumsum(np.bincount(all_var, minlength=V))]).astype(int)
-    layer = Layer(knots, tan_a, tan_b, samp_ptr, all_s[o], all_d[o])
+    samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+    layer = Layer(knots, tan_a, tan_b, samp_ptr, out_s[:w], out_d[:w])
     return track.with_base(layer)
 
 
