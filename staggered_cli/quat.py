@@ -149,7 +149,7 @@ def unroll(q: np.ndarray, axis: int = 0) -> np.ndarray:
         for lo in range(0, T - 1, rows):
             hi = min(lo + rows, T - 1)
             back[lo:hi] = np.sum(q[lo + 1 : hi + 1] * q[lo:hi], axis=-1) < 0.0
-        flips = np.cumsum(back, axis=0) % 2
+        flips = np.logical_xor.accumulate(back, axis=0)  # the parity of the flips so far
         del back
         for lo in range(0, T - 1, rows):
             hi = min(lo + rows, T - 1)
