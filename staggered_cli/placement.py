@@ -127,11 +127,13 @@ def proxy_from_dense(variables, w: np.ndarray, keep: float | None = None) -> Pro
     rows = max(1, _PROXY_BLOCK // max(V, 1))
     w = np.asarray(w, dtype=float)
     if T > 1:
-        steps = np.empty((T - 1, V))
+        # summed a block at a time, row after row as np.sum(steps, axis=0)
+        # adds them (the same bits), without a (T - 1, V) array of the steps
+        path = None
         for lo in range(0, T - 1, rows):
             hi = min(lo + rows, T - 1)
-            steps[lo:hi] = np.linalg.norm(np.diff(x_of(lo, hi + 1), axis=0), axis=2)
-        path = np.sum(steps, axis=0)
+            steps = np.linalg.norm(np.diff(x_of(lo, hi + 1), axis=0), axis=2)
+            path = np.sum(steps if path is None else np.concatenate([path[None], steps]), axis=0)
         del steps
     else:
         path = np.zeros(V)

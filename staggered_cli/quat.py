@@ -163,13 +163,27 @@ def ominus(c: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 def unroll(q: np.ndarray, axis: int = 0) -> np.ndarray:
     """Flip signs along ``axis`` so that consecutive quaternions have dot >= 0."""
-    q = np.moveaxis(np.array(q, dtype=float), axis, 0)
-    if q.shape[0] > 1:
-        dots = np.sum(q[1:] * q[:-1], axis=-1)
-        flips = np.cumsum(dots < 0.0, axis=0) % 2
-        sign = np.concatenate([np.ones((1,) + flips.shape[1:]), 1.0 - 2.0 * flips], axis=0)
-        q = q * sign[..., None]
+    q = np.moveaxis(np.array(q, dtype=float), axis, 0)  # the result: the one copy
+    T = q.shape[0]
+    if T > 1:
+        # a block of steps at a time, and the signs applied in place: no
+        # temporaries the size of the input (unrolling a long clip's
+        # rotations tripled their memory)
+        rows = max(1, _UNROLL_BLOCK // max(q[0].size, 1))
+        back = np.empty((T - 1,) + q.shape[1:-1], dtype=bool)
+        for lo in range(0, T - 1, rows):
+            hi = min(lo + rows, T - 1)
+            back[lo:hi] = np.sum(q[lo + 1 : hi + 1] * q[lo:hi], axis=-1) < 0.0
+        flips = np.logical_xor.accumulate(back, axis=0)  # the parity of the flips so far
+        del back
+        for lo in range(0, T - 1, rows):
+            hi = min(lo + rows, T - 1)
+            q[lo + 1 : hi + 1] *= (1.0 - 2.0 * flips[lo:hi])[..., None]
     return np.moveaxis(q, 0, axis)
+
+
+#: Quaternion components handled at once by :func:`unroll` (about 2 MB).
+_UNROLL_BLOCK = 1 << 18
 
 
 def hemisphere(q: np.ndarray, ref: np.ndarray) -> np.ndarray:

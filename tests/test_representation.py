@@ -12,7 +12,7 @@ from staggered_cli.motion import channels_from_local
 from staggered_cli.representation import evaluate, restructure, with_knot_times
 from staggered_cli.skeleton import forward_kinematics
 
-from .conftest import BVH_FILES, C3D_FILES, mocap
+from .conftest import BVH_FILES, C3D_FILES, dev_document, mocap
 
 
 def _bake_channels(doc):
@@ -188,3 +188,49 @@ def test_extract_in_groups_and_blocks_gives_the_same_bits(monkeypatch):
     monkeypatch.setattr(signals, "_STEP_BLOCK", 32 * 77)
     monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
     assert document_bytes(*to_parts(extract(read_bvh(path))), "npz") == once
+
+
+def test_cull_and_succession_in_small_groups_give_the_same_bits(monkeypatch, tmp_path):
+    """restructure writing its samples range of variables by range (fit
+    groups of about one variable, carried variables one by one), the proxy's
+    path and quat.unroll over small blocks of frames, and a document read in
+    small pieces: the same documents to the bit as whole processing."""
+    from staggered_cli import placement, representation
+    from staggered_cli.cli.common import read_document
+    from staggered_cli.io import document as document_io
+    from staggered_cli.io.document import document_bytes
+    from staggered_cli.ops import cull, timing
+
+    doc = dev_document("cmu_01_01_forward_jumps.bvh")
+
+    def steps(d):
+        motion = cull.base_motion(d)
+        culled = cull.keep_poses(d, cull.choose(d, keep="30%", motion=motion), motion)
+        succ = timing.succession(d, 0.03, 1.5, joint="@left-arm", clamp=True)
+        return [document_bytes(*to_parts(x), "npz") for x in (culled, succ)]
+
+    whole = steps(doc)
+    path = tmp_path / "doc.stag"
+    path.write_bytes(document_bytes(*to_parts(doc), "npz"))
+    read_whole = read_document(str(path))
+    monkeypatch.setattr(representation, "_FIT_GROUP", 3000)  # about one variable a group
+    monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
+    monkeypatch.setattr(quat, "_UNROLL_BLOCK", 31 * 4 * 7)
+    monkeypatch.setattr(document_io, "_READ_CHUNK", 1000)
+    assert steps(doc) == whole
+    read_small = read_document(str(path))
+    assert document_bytes(*to_parts(read_small), "npz") == document_bytes(*to_parts(read_whole), "npz")
+
+
+def test_unroll_in_blocks_matches_the_flips_of_the_whole():
+    """Blocked, in-place unroll = the sign of the cumulative parity of the
+    negative dots over the whole clip, to the bit, along any axis."""
+    rng = np.random.default_rng(4)
+    q = quat.normalize(rng.normal(size=(300, 5, 4)))
+    dots = np.sum(q[1:] * q[:-1], axis=-1)
+    flips = np.cumsum(dots < 0.0, axis=0) % 2
+    sign = np.concatenate([np.ones((1, 5)), 1.0 - 2.0 * flips], axis=0)
+    want = q * sign[..., None]
+    np.testing.assert_array_equal(quat.unroll(q, axis=0), want)
+    np.testing.assert_array_equal(quat.unroll(np.moveaxis(q, 0, 1), axis=1), np.moveaxis(want, 0, 1))
+    assert np.all(np.sum(quat.unroll(q)[1:] * quat.unroll(q)[:-1], axis=-1) >= 0.0)
