@@ -796,8 +796,54 @@ def restructure(
         size = np.diff(old.samp_ptr)[todo] + n_old[todo]
     else:
         size = len(ft) + n_old[todo]
-    flat_var, flat_seg, fresh_s, d_new = [], [], [], []
-    for j0, j1 in _variable_groups(size, _FIT_GROUP):
+    # the new samples are written in their final order (by variable, then
+    # knot coordinate) into arrays allocated once, range of variables by
+    # range: each fit group's variables with their carried samples, and the
+    # variables in between (nothing refitted) in groups of _FIT_GROUP old
+    # samples.  The bound (old samples + the refitted variables' candidate
+    # times) is allocated but the pages past the end are never touched.
+    old_to_new = np.full(int(old.knots.seg_ptr[-1]), -1)
+    kept = np.flatnonzero(kept_old >= 0)
+    old_to_new[kept_old[kept]] = kept
+    bound = int(old.samp_ptr[-1]) + int(np.sum(size))
+    out_s = np.empty(bound)
+    out_d = np.empty((bound, D))
+    counts = np.zeros(V, dtype=int)
+    w = 0
+
+    def emit(i0: int, i1: int, g_var, g_seg, g_s, g_d) -> None:
+        # the old samples of variables i0..i1-1 whose segment is kept, and
+        # the fresh ones, in order of (new) segment: each segment's samples
+        # are already in order, and all carried or all fresh, so ordering by
+        # segment (stably) is enough
+        nonlocal w
+        o0, o1 = int(old.samp_ptr[i0]), int(old.samp_ptr[i1])
+        ss = old.samp_s[o0:o1]
+        owner = np.repeat(np.arange(i0, i1), np.diff(old.samp_ptr[i0 : i1 + 1]))
+        old_local = np.floor(ss).astype(int)
+        old_local = np.minimum(old_local, np.maximum(n_old[owner] - 2, 0))
+        new_of_sample = old_to_new[old_local + old.knots.seg_ptr[owner]] if len(ss) else np.zeros(0, dtype=int)
+        carry = new_of_sample >= 0
+        carried_seg = new_of_sample[carry]
+        carried_s = ss[carry] - old_local[carry] + (carried_seg - knots.seg_ptr[seg_var[carried_seg]])
+        del old_local, new_of_sample
+        o = np.argsort(np.concatenate([carried_seg, g_seg]), kind="stable")
+        n = len(o)
+        out_s[w : w + n] = np.concatenate([carried_s, g_s])[o]
+        out_d[w : w + n] = np.concatenate([old.samp_d[o0:o1][carry], g_d])[o]
+        counts[i0:i1] = np.bincount(np.concatenate([owner[carry], g_var]) - i0, minlength=i1 - i0)
+        w += n
+
+    none_i, none_f, none_d = np.zeros(0, dtype=int), np.zeros(0), np.zeros((0, D))
+    old_counts = np.diff(old.samp_ptr)
+
+    def emit_carried(i0: int, i1: int) -> None:
+        for c0, c1 in _variable_groups(old_counts[i0:i1], _FIT_GROUP):
+            emit(i0 + c0, i0 + c1, none_i, none_i, none_f, none_d)
+
+    done = 0  # variables emitted so far
+    groups = _variable_groups(size, _FIT_GROUP)
+    for j0, j1 in groups:
         # samples of the group's segments to refit: (time, frame index or -1)
         samples_t, samples_frame, samples_var, samples_seg, samples_u = [], [], [], [], []
         for i in todo[j0:j1]:
@@ -842,96 +888,19 @@ def restructure(
         ga, gb, gd = _fit_segments(track.kind, knots.v[fs], knots.v[fs + 1], local[g_seg] - r0, g_u, values, r1 - r0)
         del values
         a_new[r0:r1], b_new[r0:r1] = ga, gb
-        flat_var.append(g_var)
-        flat_seg.append(g_seg)
-        fresh_s.append((g_seg - knots.seg_ptr[g_var]) + g_u)
-        d_new.append(gd)
-        del g_u, ga, gb, gd
+        i0, i1 = int(todo[j0]), int(todo[j1 - 1]) + 1
+        emit_carried(done, i0)
+        emit(i0, i1, g_var, g_seg, (g_seg - knots.seg_ptr[g_var]) + g_u, gd)
+        done = i1
+        del g_var, g_seg, g_u, ga, gb, gd
+    emit_carried(done, V)
     tan_a = np.zeros((len(new_first), 3))
     tan_b = np.zeros((len(new_first), 3))
-    kept = np.flatnonzero(kept_old >= 0)
     tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
     tan_a[refit], tan_b[refit] = a_new, b_new
-    samp_ptr, samp_s, samp_d = _assemble_samples(old, knots, kept_old, D, flat_var, flat_seg, fresh_s, d_new)
-    return track.with_base(Layer(knots, tan_a, tan_b, samp_ptr, samp_s, samp_d))
-
-
-#: Old displacement samples :func:`_assemble_samples` carries over at once.
-_CARRY_BLOCK = 1 << 18
-
-
-def _old_segments(old: Layer, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-    """The segment of ``old``'s displacement samples ``lo:hi``: within their
-    variable, and global."""
-    owner = np.searchsorted(old.samp_ptr, np.arange(lo, hi), side="right") - 1
-    local = np.floor(old.samp_s[lo:hi]).astype(int)
-    local = np.minimum(local, np.maximum(np.diff(old.knots.ptr)[owner] - 2, 0))
-    return local, local + old.knots.seg_ptr[owner]
-
-
-def _assemble_samples(
-    old: Layer,
-    knots: Knots,
-    kept_old: np.ndarray,
-    D: int,
-    flat_var: list[np.ndarray],
-    flat_seg: list[np.ndarray],
-    fresh_s: list[np.ndarray],
-    d_new: list[np.ndarray],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The displacement samples of the refitted layer (samp_ptr, samp_s, samp_d):
-    the kept segments' own (re-indexed) and the refitted ones' new (``flat_*``,
-    ``fresh_s``, ``d_new``: one piece per group of whole variables, in order),
-    in order of variable and knot coordinate.
-
-    Each segment's samples are all carried or all fresh and already in
-    order, and both sets are ordered by segment, so each sample's place is
-    its segment's offset plus its rank inside the segment: the samples are
-    written straight there, the carried ones a block at a time, with no
-    concatenated or sorted copy of the whole (the same arrays as a stable
-    sort by segment of both sets).  The pieces are consumed (emptied).
-    """
-    S_new, S_old = len(knots.seg_first), int(old.knots.seg_ptr[-1])
-    V = knots.n_vars
-    n_old = len(old.samp_s)
-    old_to_new = np.full(S_old, -1)
-    kept = np.flatnonzero(kept_old >= 0)
-    old_to_new[kept_old[kept]] = kept
-    # samples per old segment (to place the carried ones) and per new segment
-    per_old = np.zeros(S_old, dtype=int)
-    for lo in range(0, n_old, _CARRY_BLOCK):
-        per_old += np.bincount(_old_segments(old, lo, min(lo + _CARRY_BLOCK, n_old))[1], minlength=S_old)
-    per_new = np.zeros(S_new, dtype=int)
-    per_new[kept] = per_old[kept_old[kept]]
-    for seg in flat_seg:
-        per_new += np.bincount(seg, minlength=S_new)
-    first_new = np.concatenate([[0], np.cumsum(per_new)])
-    first_old = np.concatenate([[0], np.cumsum(per_old)])
-    N = int(first_new[-1])
-    samp_s = np.empty(N)
-    samp_d = np.empty((N, D))
-    counts = np.zeros(V, dtype=int)
-    for lo in range(0, n_old, _CARRY_BLOCK):
-        hi = min(lo + _CARRY_BLOCK, n_old)
-        local, gseg = _old_segments(old, lo, hi)
-        to = old_to_new[gseg]
-        carry = np.flatnonzero(to >= 0)
-        if len(carry) == 0:
-            continue
-        g, new_g = gseg[carry], to[carry]
-        at = first_new[new_g] + (carry + lo - first_old[g])
-        samp_s[at] = old.samp_s[lo:hi][carry] - local[carry] + (new_g - knots.seg_ptr[knots.seg_var[new_g]])
-        samp_d[at] = old.samp_d[lo:hi][carry]
-        counts += np.bincount(knots.seg_var[new_g], minlength=V)
-    while flat_seg:
-        seg, var, fs, d = flat_seg.pop(0), flat_var.pop(0), fresh_s.pop(0), d_new.pop(0)
-        at = first_new[seg] + (np.arange(len(seg)) - np.searchsorted(seg, seg, side="left"))
-        samp_s[at] = fs
-        samp_d[at] = d
-        counts += np.bincount(var, minlength=V)
-        del seg, var, fs, d, at
     samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
-    return samp_ptr, samp_s, samp_d
+    layer = Layer(knots, tan_a, tan_b, samp_ptr, out_s[:w], out_d[:w])
+    return track.with_base(layer)
 
 
 def _with_knot_times(frame_t: np.ndarray, knot_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

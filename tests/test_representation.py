@@ -96,11 +96,11 @@ def test_parts_round_trip_exactly():
         np.testing.assert_array_equal(a2[k], arrays[k])
 
 
-def test_restructure_places_samples_as_a_stable_sort_would(monkeypatch):
+def test_restructure_places_samples_in_order_and_carries_kept_ones(monkeypatch):
     """The refitted layer's samples are written straight to their places:
     kept segments' samples are the old ones, moved; every variable's samples
-    are in order of knot coordinate; and small blocks of carried samples and
-    groups of variables give the same bits as one block."""
+    are in order of knot coordinate; and small groups of variables give the
+    same bits as large ones."""
     from staggered_cli import representation
     from staggered_cli.ops import cull
 
@@ -113,7 +113,6 @@ def test_restructure_places_samples_as_a_stable_sort_would(monkeypatch):
         knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
         whole = restructure(tr, knots, frame_t=doc.frame_times).base
         with monkeypatch.context() as m:
-            m.setattr(representation, "_CARRY_BLOCK", 7)
             m.setattr(representation, "_FIT_GROUP", 500)
             small = restructure(tr, knots, frame_t=doc.frame_times).base
         for name in ("tan_a", "tan_b", "samp_ptr", "samp_s", "samp_d"):
