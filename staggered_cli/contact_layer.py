@@ -107,18 +107,22 @@ def source_changed(src, rot: np.ndarray, tr: np.ndarray, lo: int, joints: np.nda
     sk = src.skeleton
     ch = src.channels[lo : lo + len(rot)]
     if joints is None:
-        src_rot = local_rotations_from_channels(sk, ch, unroll=False)
-        src_tr = local_translations_from_channels(sk, ch)
-        return (1.0 - np.abs(np.sum(rot * src_rot, axis=-1)) > 1e-12) | np.any(np.abs(tr - src_tr) > 1e-9, axis=-1)
+        return _differs(
+            rot, local_rotations_from_channels(sk, ch, unroll=False), tr, local_translations_from_channels(sk, ch)
+        )
     out = np.zeros(rot.shape[:2], dtype=bool)
     if len(joints):
         # each joint's numbers are its own: the same as over all joints
         src_rot = local_rotations_from_channels(sk, ch, unroll=False, joints=joints)[:, joints]
-        src_tr = local_translations_from_channels(sk, ch)[:, joints]
-        out[:, joints] = (1.0 - np.abs(np.sum(rot[:, joints] * src_rot, axis=-1)) > 1e-12) | np.any(
-            np.abs(tr[:, joints] - src_tr) > 1e-9, axis=-1
+        out[:, joints] = _differs(
+            rot[:, joints], src_rot, tr[:, joints], local_translations_from_channels(sk, ch)[:, joints]
         )
     return out
+
+
+def _differs(rot: np.ndarray, src_rot: np.ndarray, tr: np.ndarray, src_tr: np.ndarray) -> np.ndarray:
+    """(n, J) bool: a rotation (sign-blind) or translation that is not the source's."""
+    return (1.0 - np.abs(np.sum(rot * src_rot, axis=-1)) > 1e-12) | np.any(np.abs(tr - src_tr) > 1e-9, axis=-1)
 
 
 def chain_joints(doc: Document) -> np.ndarray:

@@ -173,7 +173,7 @@ def unroll(q: np.ndarray, axis: int = 0) -> np.ndarray:
         back = np.empty((T - 1,) + q.shape[1:-1], dtype=bool)
         for lo in range(0, T - 1, rows):
             hi = min(lo + rows, T - 1)
-            back[lo:hi] = np.sum(q[lo + 1 : hi + 1] * q[lo:hi], axis=-1) < 0.0
+            back[lo:hi] = dot(q[lo + 1 : hi + 1], q[lo:hi]) < 0.0
         flips = np.logical_xor.accumulate(back, axis=0)  # the parity of the flips so far
         del back
         for lo in range(0, T - 1, rows):
@@ -221,19 +221,8 @@ def from_euler(angles_deg: np.ndarray, order: str) -> np.ndarray:
     return mul(q, from_axis_angle(order[2], a[..., 2]))
 
 
-def _matrix(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = (q[..., i] for i in range(4))
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-#: Entry (row, column) of :func:`_matrix` of ``w, x, y, z``, each alone.
+#: Entry (row, column) of the rotation matrix of ``w, x, y, z``, each alone
+#: (:func:`to_euler` computes only the entries it reads).
 _ENTRY = (
     (
         lambda w, x, y, z: 1 - 2 * (y * y + z * z),
@@ -251,6 +240,11 @@ _ENTRY = (
         lambda w, x, y, z: 1 - 2 * (x * x + y * y),
     ),
 )
+
+
+def _matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = (q[..., i] for i in range(4))
+    return np.stack([np.stack([f(w, x, y, z) for f in row], -1) for row in _ENTRY], -2)
 
 
 def to_matrix(q: np.ndarray) -> np.ndarray:
@@ -275,8 +269,8 @@ def to_euler(q: np.ndarray, order: str, reference_deg: np.ndarray | None = None)
     """
     q = normalize(q)
     i, j, k = (_AXIS[c] for c in order)
-    # the five entries of the rotation matrix that are needed (as _matrix
-    # computes them: the same bits, without the other four)
+    # the five entries of the rotation matrix that are needed (those of
+    # _matrix, without the other four)
     w, x, y, z = (q[..., n] for n in range(4))
     m_ik, m_ii, m_ij, m_jk, m_kk = (_ENTRY[r][col](w, x, y, z) for r, col in ((i, k), (i, i), (i, j), (j, k), (k, k)))
     # R = R_i(a) R_j(b) R_k(c); parity sign of the axis permutation
