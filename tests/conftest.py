@@ -40,6 +40,15 @@ def pytest_configure(config):
         raise pytest.UsageError(f"CI=true: {_missing(MOCAP)}; the tests on real motion capture cannot run")
 
 
+def dev_bvh_files() -> list[str]:
+    """:data:`BVH_FILES`, for a test over all of them (it skips, like
+    :func:`mocap`, when ../shared/mocap is not there: an empty list would
+    make it fail instead)."""
+    if not BVH_FILES:
+        mocap("")
+    return BVH_FILES
+
+
 def mocap(name: str) -> Path:
     path = MOCAP / name
     if not path.exists():

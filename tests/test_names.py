@@ -25,7 +25,7 @@ from staggered_cli.ops.edit_pose import joint_mask
 from staggered_cli.ops.timing import randomize
 from staggered_cli.variables import from_motion
 
-from .conftest import BVH_FILES, mocap, one_line_error, short_bvh
+from .conftest import dev_bvh_files, mocap, one_line_error, short_bvh
 
 CMU = ("LeftShoulder", "RightShoulder", "LHipJoint", "RHipJoint", "LowerBack", "Neck")
 #: file -> the joint each of PARTS resolves to, and a joint deep inside each part
@@ -57,7 +57,7 @@ for _f in BANDAI:
 
 
 def test_every_dev_bvh_is_covered():
-    assert sorted(EXPECTED) == BVH_FILES
+    assert sorted(EXPECTED) == dev_bvh_files()
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
@@ -261,7 +261,7 @@ def _joint_channels(motion, names):
 def test_one_batch_steps_serves_every_dev_skeleton():
     """``--joint @left-arm`` in one step, over the 10 dev BVH: every file is
     done, its left arm is staggered and the rest of the body is unchanged."""
-    files = [mocap(n) for n in BVH_FILES]
+    files = [mocap(n) for n in dev_bvh_files()]
     steps = "cull --keep 30%|succession --joint @left-arm --offset 0.02 --power 1.5 --clamp"
     with tempfile.TemporaryDirectory() as tmp:
         lib, out = Path(tmp) / "in", Path(tmp) / "out"
