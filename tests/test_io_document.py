@@ -637,3 +637,88 @@ def test_pieces_join_to_the_document_bytes_and_a_file_reads_like_its_bytes(tmp_p
     assert_same(arrays, a_file)
     for key, value in a_file.items():
         assert value.flags.writeable and value.flags.c_contiguous and value.dtype.isnative, key
+
+
+# --- the source's arrays are mapped from a document file -------------------------------------
+
+
+def _mapping_rss_kb(path: Path) -> int | None:
+    """Resident kB of this process's mappings of ``path`` (None without /proc/self/smaps)."""
+    try:
+        lines = Path("/proc/self/smaps").read_text().splitlines()
+    except OSError:
+        return None
+    total, inside = 0, False
+    for line in lines:
+        head = line.split()
+        if head and "-" in head[0] and len(head) >= 5 and ":" in head[3]:  # a mapping's header line
+            inside = line.rstrip().endswith(str(path))
+        elif inside and line.startswith("Rss:"):
+            total += int(line.split()[1])
+    return total
+
+
+@pytest.fixture
+def mapped_everything(monkeypatch):
+    """Map the source's arrays whatever their size (the sample's are small)."""
+    monkeypatch.setattr(document, "_MAP_MIN_BYTES", 1)
+
+
+def test_source_arrays_of_a_file_are_mapped_read_only_and_equal_to_its_bytes(march_npz, tmp_path, mapped_everything):
+    path = tmp_path / "m.stag"
+    path.write_bytes(march_npz)
+    _, from_bytes = parse_document(march_npz, NAME)
+    with open(path, "rb") as fh:
+        _, from_file = parse_document(fh, NAME)
+    assert from_file.keys() == from_bytes.keys()
+    for key, value in from_file.items():
+        np.testing.assert_array_equal(value, from_bytes[key], err_msg=key)
+        assert value.dtype == from_bytes[key].dtype and value.flags.c_contiguous, key
+        # the source's arrays are the file's pages (read-only: a step that
+        # wrote into the source would be a bug), the others the reader's own
+        assert value.flags.writeable == (key not in document._MAPPED), key
+
+
+def test_a_mapped_member_still_fails_its_crc(march_npz, tmp_path, mapped_everything):
+    with zipfile.ZipFile(io.BytesIO(march_npz)) as zf:
+        info = zf.getinfo("source.channels.npy")
+    assert info.compress_type == zipfile.ZIP_STORED
+    b = bytearray(march_npz)
+    b[info.header_offset + 30 + len(info.filename) + info.file_size - 3] ^= 0x10  # in the last value
+    path = tmp_path / "bad.stag"
+    path.write_bytes(bytes(b))
+    with open(path, "rb") as fh, pytest.raises(DataError) as err:
+        parse_document(fh, NAME)
+    assert "corrupt NPZ document" in str(err.value) and "CRC" in str(err.value)
+    one_line_error(_run("info", path), 1, "bad.stag", "CRC")
+
+
+def test_checked_source_pages_leave_memory(march_npz, tmp_path, mapped_everything):
+    """After reading, the mapped channels take (almost) no memory: the
+    checks touched every page and released it; using them brings them back."""
+    from staggered_cli.cli.common import read_document
+
+    path = tmp_path / "rss.stag"
+    path.write_bytes(march_npz)
+    doc = read_document(str(path))
+    after_read = _mapping_rss_kb(path)
+    if after_read is None:
+        pytest.skip("no /proc/self/smaps")
+    channel_kb = doc.source.channels.nbytes // 1024
+    assert channel_kb >= 40  # the measure below can tell
+    assert after_read <= 16, after_read  # a few pages at the ends of members
+    assert float(np.sum(doc.source.channels)) == pytest.approx(float(np.sum(np.array(doc.source.channels))))
+    assert _mapping_rss_kb(path) >= channel_kb - 8
+
+
+def test_a_step_writes_over_its_own_mapped_input(march_npz, tmp_path, mapped_everything):
+    """``cull doc -o doc --force`` reads the source's arrays from the file
+    it replaces (a new file renamed over it): the result is the same as
+    written elsewhere, and reads back."""
+    a, b = tmp_path / "a.stag", tmp_path / "b.stag"
+    a.write_bytes(march_npz)
+    assert _run("cull", "--keep", "50%", a, "-o", b).exit_code == 0
+    result = _run("cull", "--keep", "50%", a, "-o", a, "--force")
+    assert result.exit_code == 0, result.stderr
+    assert a.read_bytes() == b.read_bytes()
+    assert _run("bake", a, "-o", tmp_path / "a.bvh").exit_code == 0
