@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
+from staggered_cli.io import bvh
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
 from staggered_cli.motion import channels_from_local
 
@@ -255,3 +260,42 @@ def test_a_document_whose_source_text_is_not_the_source_is_refused():
         parse_bvh(mocap("bandai2_run_normal_001.bvh").read_bytes()).channels,
         atol=1e-6,
     )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["0", "-1.5", "12.345678", "1e-05", "+3.", ".25"]),
+            st.sampled_from([" ", "\t", "  ", "\r\n", "\n", " \t\n", "\x0b", "\x0c"]),
+            st.booleans(),
+        ),
+        min_size=1,
+        max_size=40,
+    ),
+    st.booleans(),
+    st.booleans(),
+)
+def test_spliced_tokens_equal_the_tokens_replaced_one_by_one(items, lead, trail):
+    """The writer's splice (one gather over the bytes) is the source with
+    the chosen tokens replaced and every other byte kept, as replacing the
+    tokens of a white-space split does."""
+    text = (" \n" if lead else "") + "".join(tok + sep for tok, sep, _ in items)
+    if not trail:
+        text = text.rstrip(" \t\r\n\x0b\x0c")
+    data = b"#" + text.encode("ascii") + b"#"  # the piece is data[1:-1]
+    a, b = 1, len(data) - 1
+    starts, ends = bvh._token_spans(data, a, b)
+    pieces = re.split(rb"(\s+)", data[a:b])
+    first = 2 if pieces and pieces[0] == b"" else 0
+    tokens = pieces[first::2]
+    tokens = tokens[:-1] if tokens and tokens[-1] == b"" else tokens
+    assert [data[a + s : a + e] for s, e in zip(starts, ends, strict=True)] == tokens
+    which = np.flatnonzero([chosen for _, _, chosen in items][: len(tokens)])
+    if not len(which):
+        return
+    new = [f"N{j}x" * (j % 3 + 1) for j in range(len(which))]
+    for i, tok in zip(which.tolist(), new, strict=True):
+        pieces[first + 2 * i] = tok.encode()
+    got = bvh._spliced(data, a, b, starts[which], ends[which], " ".join(new).encode())
+    assert got == b"".join(pieces)
