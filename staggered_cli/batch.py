@@ -101,16 +101,31 @@ def _command(name: str, commands: Commands):
     return getattr(importlib.import_module(module_name), attr)
 
 
-@contextlib.contextmanager
-def _stdio(data: bytes) -> Iterator[tuple[io.BytesIO, io.StringIO]]:
-    """Bind stdin to ``data`` and stdout / stderr to memory, as a pipe would.
+class _Pipe(io.BytesIO):
+    """A pipe between two of a file's commands: bytes, or the whole
+    Document one command wrote to standard output, which the next reads
+    from standard input as it is (:func:`~staggered_cli.cli.common.read_document`
+    and ``write_document`` hand it over): a document made in this process
+    need not be serialized, checked and parsed again between steps (cull +
+    succession over the 10 dev BVH files: 325 ms of 3.9 s)."""
 
-    Yields the BytesIO that receives standard output and the StringIO that
+    document = None
+
+
+@contextlib.contextmanager
+def _stdio(data) -> Iterator[tuple[_Pipe, io.StringIO]]:
+    """Bind stdin to ``data`` (bytes, or a Document handed over) and stdout /
+    stderr to memory, as a pipe would.
+
+    Yields the pipe that receives standard output and the StringIO that
     receives standard error (where the commands log their warnings).
     """
     saved = sys.stdin, sys.stdout, sys.stderr
-    out, err = io.BytesIO(), io.StringIO()
-    stdin = io.TextIOWrapper(io.BytesIO(data))
+    out, err = _Pipe(), io.StringIO()
+    pipe = _Pipe(data) if isinstance(data, bytes | bytearray) else _Pipe()
+    if not isinstance(data, bytes | bytearray):
+        pipe.document = data
+    stdin = io.TextIOWrapper(pipe)
     stdout = io.TextIOWrapper(out, write_through=True)
     sys.stdin, sys.stdout, sys.stderr = stdin, stdout, err
     try:
@@ -122,11 +137,13 @@ def _stdio(data: bytes) -> Iterator[tuple[io.BytesIO, io.StringIO]]:
         stdin.detach()
 
 
-def _invoke(name: str, argv: Sequence[str], data: bytes, messages: list[str], commands: Commands) -> bytes:
-    """Run command ``name`` on ``argv`` with ``data`` as its standard input.
+def _invoke(name: str, argv: Sequence[str], data, messages: list[str], commands: Commands):
+    """Run command ``name`` on ``argv`` with ``data`` as its standard input
+    (bytes, or a Document handed over by the previous command).
 
-    Returns what it wrote on standard output; what it wrote on standard
-    error is appended to ``messages``.  Its exceptions propagate unchanged.
+    Returns what it wrote on standard output (the Document it handed over,
+    if it did); what it wrote on standard error is appended to
+    ``messages``.  Its exceptions propagate unchanged.
     """
     command = _command(name, commands)
     with _stdio(data) as (out, err):
@@ -135,7 +152,7 @@ def _invoke(name: str, argv: Sequence[str], data: bytes, messages: list[str], co
                 command.invoke(ctx)
         finally:
             messages.extend(line for line in err.getvalue().splitlines() if line.strip())
-    return out.getvalue()
+    return out.document if out.document is not None else out.getvalue()
 
 
 def parse_steps(text: str | None, commands: Commands) -> list[Step]:

@@ -179,6 +179,33 @@ def test_steps_change_the_motion_and_cull_alone_does_not(tmp_path):
         assert (tmp_path / "make" / "walk.bvh").read_bytes() == (tmp_path / "stag" / "walk.bvh").read_bytes()
 
 
+def test_steps_hand_documents_over_and_bake_what_the_pipe_bakes(tmp_path):
+    """Between a file's steps the batch hands the Document over in memory
+    (no serializing, checking and parsing again); what it bakes is what the
+    commands piped through document files bake, to the byte, BVH and C3D."""
+    from staggered_cli import batch
+    from staggered_cli.cli.main import COMMANDS
+    from staggered_cli.document import Document
+
+    for name, steps in (("cmu_02_01_walk.bvh", STEPS), ("c3dorg_sample01_Eb015pi_walk.c3d", "cull --keep 30%")):
+        src = mocap(name)
+        handed = batch._invoke("extract", ["-o", "-", "--", str(src)], b"", [], COMMANDS)
+        assert isinstance(handed, Document)
+        doc = tmp_path / f"{name}.0.stag"
+        assert CliRunner().invoke(cli, ["-q", "extract", str(src), "-o", str(doc)]).exit_code == 0
+        for i, step in enumerate(steps.split("|")):
+            nxt = tmp_path / f"{name}.{i + 1}.stag"
+            r = CliRunner().invoke(cli, ["-q", *step.split(), str(doc), "-o", str(nxt)])
+            assert r.exit_code == 0, r.output
+            doc = nxt
+        piped = tmp_path / f"piped_{name}"
+        assert CliRunner().invoke(cli, ["-q", "bake", str(doc), "-o", str(piped)]).exit_code == 0
+        out = tmp_path / f"batch_{name}"
+        result = batch.run_file(batch.Job(name, str(src), str(out)), batch.parse_steps(steps, COMMANDS), COMMANDS)
+        assert result.status == batch.DONE, result.reason
+        assert out.read_bytes() == piped.read_bytes(), name
+
+
 @pytest.mark.parametrize(
     "steps, words",
     [

@@ -4,6 +4,7 @@ and parsers for the small option languages (``A:B`` ranges, ``J=x,y,z``)."""
 from __future__ import annotations
 
 import math
+import sys
 
 import click
 
@@ -12,9 +13,15 @@ from .options import check_output, document_format, emit, load_document
 
 
 def read_document(path: str):
-    """The :class:`~staggered_cli.document.Document` in ``path`` (``-``: stdin)."""
+    """The :class:`~staggered_cli.document.Document` in ``path`` (``-``: stdin,
+    where a batch's previous step may have handed over the Document itself)."""
     from ..io.document import from_parts
-    from ..io.files import display_name
+    from ..io.files import STDIO, display_name
+
+    if path == STDIO:
+        handed = getattr(getattr(sys.stdin, "buffer", None), "document", None)
+        if handed is not None:
+            return handed
 
     manifest, arrays = load_document(path)
     try:
@@ -24,8 +31,15 @@ def read_document(path: str):
 
 
 def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
-    """Serialize ``doc`` and write it atomically (or to stdout)."""
+    """Serialize ``doc`` and write it atomically (or to stdout; to a batch's
+    pipe between two steps, the Document itself is handed over)."""
     from ..io.document import document_pieces, to_parts
+    from ..io.files import STDIO
+
+    pipe = getattr(sys.stdout, "buffer", None) if output == STDIO else None
+    if hasattr(pipe, "document"):
+        pipe.document = doc
+        return
 
     manifest, arrays = to_parts(doc)
     emit(output, document_pieces(manifest, arrays, document_format(fmt, output)), force)
