@@ -438,8 +438,10 @@ def _worker_main(conn, parent_pid: int, level: int, commands: Commands) -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, unwind)
+    from .heap import reuse_freed_memory
     from .log import configure_logging, log
 
+    reuse_freed_memory()
     configure_logging(0, 0)
     log.setLevel(level)
     try:

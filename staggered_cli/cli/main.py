@@ -36,6 +36,7 @@ import click
 
 from .. import __version__
 from ..errors import StaggeredError
+from ..heap import reuse_freed_memory
 from ..log import PROG, configure_logging
 from .options import INPUT_KEY
 
@@ -229,6 +230,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool) -> None:
     standard output. Exit codes: 0 success, 1 bad data, 2 bad usage.
     """
     configure_logging(verbose, quiet)
+    reuse_freed_memory()
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
 
