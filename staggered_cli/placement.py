@@ -331,65 +331,74 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
     weight = proxy.w.astype(np.float32)
     # every buffer is made once: a fresh temporary of a few hundred kB costs
     # its page faults again at every use
-    scratch = np.empty((_BASIS_SCRATCH, G * top))
-    b_buf = np.empty(G * top * 4, np.float32)
-    a_buf = np.empty(G * 2 * (top + 1), np.float32)
+    # basis rows (segments times inner nodes) made at once: a batch's at least
+    rows = max(_BASIS_BATCH, _WINDOW_BATCH // VC, top)
+    scratch = np.empty(_BASIS_SCRATCH * rows)
+    b_buf = np.empty(rows * 4, np.float32)
+    a_buf = np.empty(2 * (rows + 2 * rows), np.float32)
     p_buf = np.empty(4 * (_WINDOW_BATCH + top * VC), np.float32)
     r_buf = np.empty(_WINDOW_BATCH + top * VC, np.float32)
     row = VC * x.itemsize
     for w in range(2, top + 1):
         n = G - w
-        B = b_buf[: n * (w - 1) * 4].reshape(n, w - 1, 4)
-        A = a_buf[: n * 2 * (w + 1)].reshape(n, 2, w + 1)
-        _window_basis(node_f, w, scratch, B, A)
+        nodes = as_strided(node_f, (n, w + 1), node_f.strides * 2, writeable=False)
         # span[i]: the values at nodes i .. i + w (a view: rows overlap)
         span = as_strided(x, (n, w + 1, VC), (row, row, x.itemsize), writeable=False)
         w_inner = np.tile(weight, w - 1)
         block = max(1, _WINDOW_BATCH // ((w - 1) * VC))
-        for s in range(0, n, block):
-            e = min(s + block, n)
-            m = e - s
-            X = span[s:e]
-            P = p_buf[: m * 4 * VC].reshape(m, 4, VC)  # x_a, x_b, c_1, c_2
-            P[:, 0] = X[:, 0]
-            P[:, 1] = X[:, w]
-            np.matmul(A[s:e], X, out=P[:, 2:])
-            r = r_buf[: m * (w - 1) * VC].reshape(m, w - 1, VC)
-            np.matmul(B[s:e], P, out=r)
-            np.subtract(X[:, 1:w], r, out=r)
-            np.multiply(r, r, out=r)
-            # the size of the misfit per variable: the sum over the 4
-            # channels written out (a tenth of np.sum's time), its root
-            r4 = r.reshape(m, (w - 1) * V, C)
-            err = r4[..., 0] + r4[..., 1]
-            err += r4[..., 2]
-            err += r4[..., 3]
-            np.sqrt(err, out=err)
-            out[s:e, w - 1] = np.einsum("nk,k->n", err, w_inner)
+        chunk = block * max(1, rows // ((w - 1) * block))  # segments whose basis is made at once
+        for c in range(0, n, chunk):
+            k = min(c + chunk, n) - c
+            B = b_buf[: k * (w - 1) * 4].reshape(k, w - 1, 4)
+            A = a_buf[: k * 2 * (w + 1)].reshape(k, 2, w + 1)
+            _window_basis(nodes[c : c + k], scratch, B, A)
+            for s in range(c, c + k, block):
+                e = min(s + block, c + k)
+                m = e - s
+                X = span[s:e]
+                P = p_buf[: m * 4 * VC].reshape(m, 4, VC)  # x_a, x_b, c_1, c_2
+                P[:, 0] = X[:, 0]
+                P[:, 1] = X[:, w]
+                np.matmul(A[s - c : e - c], X, out=P[:, 2:])
+                r = r_buf[: m * (w - 1) * VC].reshape(m, w - 1, VC)
+                np.matmul(B[s - c : e - c], P, out=r)
+                np.subtract(X[:, 1:w], r, out=r)
+                np.multiply(r, r, out=r)
+                # the size of the misfit per variable: the sum over the 4
+                # channels written out (a tenth of np.sum's time), its root
+                r4 = r.reshape(m, (w - 1) * V, C)
+                err = r4[..., 0] + r4[..., 1]
+                err += r4[..., 2]
+                err += r4[..., 3]
+                np.sqrt(err, out=err)
+                out[s:e, w - 1] = np.einsum("nk,k->n", err, w_inner)
     return out
 
 
 #: Rows of the scratch :func:`_window_basis` works in.
 _BASIS_SCRATCH = 7
+#: Basis values (segments times inner nodes) :func:`window_costs` makes at
+#: once: its scratch stays under 1 MB, as fast as all of a width's at once
+#: (whose scratch grew with the piece: 7 float64 per node and width).
+_BASIS_BATCH = 1 << 14
 
 
-def _window_basis(node_f: np.ndarray, w: int, scratch: np.ndarray, B: np.ndarray, A: np.ndarray) -> None:
-    """The Bézier basis and least-squares controls of every segment of ``w`` nodes.
+def _window_basis(nodes: np.ndarray, scratch: np.ndarray, B: np.ndarray, A: np.ndarray) -> None:
+    """The Bézier basis and least-squares controls of segments of ``w`` nodes.
 
     Parameters
     ----------
-    node_f : (G,) float node frames; there are ``n = G - w`` segments.
-    w : the segment's length in nodes (``w - 1`` inner nodes).
-    scratch : (_BASIS_SCRATCH, >= n (w-1)) float64 work space.
+    nodes : (n, w+1) float frames of each segment's nodes (``w - 1`` inner ones).
+    scratch : (>= _BASIS_SCRATCH n (w-1),) float64 work space.
     B : (n, w-1, 4) float32, filled with ``b0, b3, b1, b2`` at the inner nodes.
     A : (n, 2, w+1) float32, filled so that the controls are ``A @ X`` for
         the values ``X`` at the segment's nodes: least squares ``G⁻¹ [b1 b2]ᵀ
         (y - b0 x_a - b3 x_b)`` from two inner nodes on, else the straight
         controls ``(2 x_a + x_b) / 3`` and ``(x_a + 2 x_b) / 3`` (as the fit).
     """
-    n = len(node_f) - w
-    u, v, t, b0, b1, b2, b3 = (q[: n * (w - 1)].reshape(n, w - 1) for q in scratch)
-    nodes = as_strided(node_f, (n, w + 1), node_f.strides * 2, writeable=False)
+    n, w = nodes.shape[0], nodes.shape[1] - 1
+    # packed one after the other
+    u, v, t, b0, b1, b2, b3 = scratch[: _BASIS_SCRATCH * n * (w - 1)].reshape(_BASIS_SCRATCH, n, w - 1)
     fa = nodes[:, :1]
     np.subtract(nodes[:, 1:w], fa, out=u)
     u /= nodes[:, w:] - fa

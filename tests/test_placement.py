@@ -153,7 +153,7 @@ def test_window_costs_are_the_plain_formula():
 
 
 def test_window_costs_in_batches_keep_every_bit(monkeypatch):
-    """Each segment's cost is computed alone: the batch size changes no bit;
+    """Each segment's cost is computed alone: the batch sizes change no bit;
     short node lists and wide windows run past the last node (inf)."""
     rng = np.random.default_rng(11)
     T, V = 300, 5
@@ -162,8 +162,9 @@ def test_window_costs_in_batches_keep_every_bit(monkeypatch):
     frames = np.unique(np.concatenate([[0], rng.choice(T, 90, replace=False), [T - 1]]))
     want = placement.window_costs(proxy, frames, 15)
     _assert_window_costs_close(want, _plain_window_costs(proxy, frames, 15))
-    for batch in (1, 7 * V * 4, 100 * V * 4):
+    for batch, basis in ((1, 1), (7 * V * 4, 1 << 16), (100 * V * 4, 1), (100 * V * 4, 300)):
         monkeypatch.setattr(placement, "_WINDOW_BATCH", batch)
+        monkeypatch.setattr(placement, "_BASIS_BATCH", basis)
         np.testing.assert_array_equal(placement.window_costs(proxy, frames, 15), want)
     for G, width in ((1, 3), (2, 3), (3, 1), (3, 5), (6, 9)):
         got = placement.window_costs(proxy, frames[:G], width)
