@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 from .motion import BvhMotion, MarkerMotion, local_rotations_from_channels, local_translations_from_channels
 from .representation import ROTATION
@@ -35,7 +36,8 @@ KEEP = 0.999
 #: Rough bound on the number of floats one batch of segment costs gathers
 #: (about 1 MB per array: they stay in cache).
 _COST_BATCH = 1 << 17
-#: The same for :func:`window_costs` (float32 values: 1 MB arrays).
+#: The same for :func:`window_costs`: residual values of one batch of
+#: segments (float32: 1 MB).
 _WINDOW_BATCH = 1 << 18
 
 
@@ -306,60 +308,132 @@ def window_costs(proxy: Proxy, frames: np.ndarray, width: int) -> np.ndarray:
     frames : (G,) increasing whole frames, the nodes (a regular grid keeps
         the measure comparable between segments).
     width : the longest segment, in nodes.
+
+    A segment's values at its ``w + 1`` nodes are the rows of ``X (w+1, V C)``;
+    its controls are ``A @ X`` (least squares, :func:`_window_basis`), its
+    residual at the inner nodes ``X[1:w] - B @ [x_a, x_b, c_1, c_2]``: two
+    matrix products per segment on the proxy's values (float32), read in place
+    from the clip (each segment's rows are a strided view of it).  The sums
+    of products run in BLAS, in its order: the costs are those of the plain
+    formula to float32 rounding (the tests compare with a float64 one).
     """
     frames = np.asarray(frames, dtype=int)
     G = len(frames)
-    x = proxy.x[frames]  # (G, V, C)
-    V, C = x.shape[1], x.shape[2]
+    V, C = proxy.x.shape[1], proxy.x.shape[2]
+    VC = V * C
+    x = np.ascontiguousarray(proxy.x[frames].reshape(G, VC), dtype=np.float32)
     out = np.full((G, width), np.inf)
-    # blocks of about 1 MB per array (they stay in cache), and the residuals
-    # computed in place: the same operations in the same order as written
-    # out, r = y - b0 xa - b3 xb, res = r - b1 c1 - b2 c2, without temporaries
-    block = max(1, _WINDOW_BATCH // max(width * V * C, 1))
-    node_f = frames.astype(np.float32)
+    top = min(width, G - 1)
+    out[:, :top][np.arange(G)[:, None] + np.arange(1, top + 1)[None, :] < G] = 0.0
+    if top < 2 or VC == 0:
+        return out
+    node_f = frames.astype(float)
     weight = proxy.w.astype(np.float32)
-    for w in range(1, min(width, G - 1) + 1):
+    # every buffer is made once: a fresh temporary of a few hundred kB costs
+    # its page faults again at every use
+    # basis rows (segments times inner nodes) made at once: a batch's at least
+    rows = max(_BASIS_BATCH, _WINDOW_BATCH // VC, top)
+    scratch = np.empty(_BASIS_SCRATCH * rows)
+    b_buf = np.empty(rows * 4, np.float32)
+    a_buf = np.empty(2 * (rows + 2 * rows), np.float32)
+    p_buf = np.empty(4 * (_WINDOW_BATCH + top * VC), np.float32)
+    r_buf = np.empty(_WINDOW_BATCH + top * VC, np.float32)
+    row = VC * x.itemsize
+    for w in range(2, top + 1):
         n = G - w
-        out[:n, w - 1] = 0.0
-        if w == 1:
-            continue
-        for s in range(0, n, block):
-            i = np.arange(s, min(s + block, n))
-            t = i[:, None] + np.arange(1, w)[None, :]  # (n, w-1) inner nodes
-            fa, fb = node_f[i], node_f[i + w]
-            u = (node_f[t] - fa[:, None]) / (fb - fa)[:, None]
-            v = 1.0 - u
-            b0, b1, b2, b3 = v**3, 3 * u * v * v, 3 * u * u * v, u**3
-            xa, xb = x[i], x[i + w]  # (n, V, C)
-            r = x[t]  # (n, w-1, V, C), a copy: becomes the residual
-            # (the products by einsum, twice as fast as broadcasting here:
-            # one multiplication per value all the same)
-            tmp = np.einsum("nt,nvc->ntvc", b0, xa)
-            r -= tmp
-            np.einsum("nt,nvc->ntvc", b3, xb, out=tmp)
-            r -= tmp
-            g11 = np.sum(b1 * b1, axis=1)[:, None, None]
-            g12 = np.sum(b1 * b2, axis=1)[:, None, None]
-            g22 = np.sum(b2 * b2, axis=1)[:, None, None]
-            h1 = np.einsum("nt,ntvc->nvc", b1, r)
-            h2 = np.einsum("nt,ntvc->nvc", b2, r)
-            det = g11 * g22 - g12 * g12
-            if w - 1 >= 2:
-                c1 = (g22 * h1 - g12 * h2) / det
-                c2 = (g11 * h2 - g12 * h1) / det
-            else:  # one inner node: the default (straight) controls
-                c1 = xa + (xb - xa) / 3.0
-                c2 = xa + 2.0 * (xb - xa) / 3.0
-            np.einsum("nt,nvc->ntvc", b1, c1, out=tmp)
-            r -= tmp
-            np.einsum("nt,nvc->ntvc", b2, c2, out=tmp)
-            r -= tmp
-            np.multiply(r, r, out=r)
-            # the sum over the 4 channels written out, in the order np.sum
-            # adds them (one after the other), at a tenth of its time
-            err = r[..., 0] + r[..., 1]
-            err += r[..., 2]
-            err += r[..., 3]
-            err = np.sqrt(err, out=err)  # (n, w-1, V)
-            out[i, w - 1] = np.einsum("ntv,v->n", err, weight)
+        nodes = as_strided(node_f, (n, w + 1), node_f.strides * 2, writeable=False)
+        # span[i]: the values at nodes i .. i + w (a view: rows overlap)
+        span = as_strided(x, (n, w + 1, VC), (row, row, x.itemsize), writeable=False)
+        w_inner = np.tile(weight, w - 1)
+        block = max(1, _WINDOW_BATCH // ((w - 1) * VC))
+        chunk = block * max(1, rows // ((w - 1) * block))  # segments whose basis is made at once
+        for c in range(0, n, chunk):
+            k = min(c + chunk, n) - c
+            B = b_buf[: k * (w - 1) * 4].reshape(k, w - 1, 4)
+            A = a_buf[: k * 2 * (w + 1)].reshape(k, 2, w + 1)
+            _window_basis(nodes[c : c + k], scratch, B, A)
+            for s in range(c, c + k, block):
+                e = min(s + block, c + k)
+                m = e - s
+                X = span[s:e]
+                P = p_buf[: m * 4 * VC].reshape(m, 4, VC)  # x_a, x_b, c_1, c_2
+                P[:, 0] = X[:, 0]
+                P[:, 1] = X[:, w]
+                np.matmul(A[s - c : e - c], X, out=P[:, 2:])
+                r = r_buf[: m * (w - 1) * VC].reshape(m, w - 1, VC)
+                np.matmul(B[s - c : e - c], P, out=r)
+                np.subtract(X[:, 1:w], r, out=r)
+                np.multiply(r, r, out=r)
+                # the size of the misfit per variable: the sum over the 4
+                # channels written out (a tenth of np.sum's time), its root
+                r4 = r.reshape(m, (w - 1) * V, C)
+                err = r4[..., 0] + r4[..., 1]
+                err += r4[..., 2]
+                err += r4[..., 3]
+                np.sqrt(err, out=err)
+                out[s:e, w - 1] = np.einsum("nk,k->n", err, w_inner)
     return out
+
+
+#: Rows of the scratch :func:`_window_basis` works in.
+_BASIS_SCRATCH = 7
+#: Basis values (segments times inner nodes) :func:`window_costs` makes at
+#: once: its scratch stays under 1 MB, as fast as all of a width's at once
+#: (whose scratch grew with the piece: 7 float64 per node and width).
+_BASIS_BATCH = 1 << 14
+
+
+def _window_basis(nodes: np.ndarray, scratch: np.ndarray, B: np.ndarray, A: np.ndarray) -> None:
+    """The Bézier basis and least-squares controls of segments of ``w`` nodes.
+
+    Parameters
+    ----------
+    nodes : (n, w+1) float frames of each segment's nodes (``w - 1`` inner ones).
+    scratch : (>= _BASIS_SCRATCH n (w-1),) float64 work space.
+    B : (n, w-1, 4) float32, filled with ``b0, b3, b1, b2`` at the inner nodes.
+    A : (n, 2, w+1) float32, filled so that the controls are ``A @ X`` for
+        the values ``X`` at the segment's nodes: least squares ``G⁻¹ [b1 b2]ᵀ
+        (y - b0 x_a - b3 x_b)`` from two inner nodes on, else the straight
+        controls ``(2 x_a + x_b) / 3`` and ``(x_a + 2 x_b) / 3`` (as the fit).
+    """
+    n, w = nodes.shape[0], nodes.shape[1] - 1
+    # packed one after the other
+    u, v, t, b0, b1, b2, b3 = scratch[: _BASIS_SCRATCH * n * (w - 1)].reshape(_BASIS_SCRATCH, n, w - 1)
+    fa = nodes[:, :1]
+    np.subtract(nodes[:, 1:w], fa, out=u)
+    u /= nodes[:, w:] - fa
+    np.subtract(1.0, u, out=v)
+    np.multiply(v, v, out=t)
+    np.multiply(t, v, out=b0)
+    np.multiply(t, u, out=b1)
+    b1 *= 3.0
+    np.multiply(u, u, out=t)
+    np.multiply(t, u, out=b3)
+    np.multiply(t, v, out=b2)
+    b2 *= 3.0
+    for k, b in enumerate((b0, b3, b1, b2)):
+        B[..., k] = b
+    if w - 1 < 2:
+        A[:, :, 1] = 0.0
+        A[:, 0, 0] = A[:, 1, 2] = 2.0 / 3.0
+        A[:, 0, 2] = A[:, 1, 0] = 1.0 / 3.0
+        return
+    g11 = np.einsum("nt,nt->n", b1, b1)
+    g12 = np.einsum("nt,nt->n", b1, b2)
+    g22 = np.einsum("nt,nt->n", b2, b2)
+    det = g11 * g22 - g12 * g12
+    g11 /= det
+    g12 /= det
+    g22 /= det
+    a1, a2 = u, v  # the rows of G⁻¹ [b1 b2]ᵀ, in u's and v's place
+    np.multiply(b1, g22[:, None], out=a1)
+    np.multiply(b2, g12[:, None], out=t)
+    a1 -= t
+    np.multiply(b2, g11[:, None], out=a2)
+    np.multiply(b1, g12[:, None], out=t)
+    a2 -= t
+    A[:, 0, 1:w] = a1
+    A[:, 1, 1:w] = a2
+    for j, a in enumerate((a1, a2)):
+        A[:, j, 0] = -np.einsum("nt,nt->n", a, b0)
+        A[:, j, w] = -np.einsum("nt,nt->n", a, b3)
