@@ -302,6 +302,13 @@ def steps(tmp: Path, repeats: int) -> list[bool]:
     if proc.returncode != 0:
         raise SystemExit(f"in-process steps failed: {proc.stderr.strip()[-400:]}")
     cpu = json.loads(proc.stdout.strip().splitlines()[-1])
+    # the goals are absolute (seconds): what they come to on the machine they
+    # were set on, by this run's floor against that one's, is printed beside
+    scale = _floor_rate(tmp, repeats) / FLOOR_RATE_THEN
+    print(
+        f"  in-process floor {scale:.2f}x the one the goals were set on: succession "
+        f"{cpu['succession'] * scale * 1000:.0f} ms and cull {cpu['cull'] * scale * 1000:.0f} ms there"
+    )
     return [
         _line(
             "in-process succession down an arm",
