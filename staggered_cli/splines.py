@@ -260,7 +260,7 @@ def fit_translation_tangents(
 # several times slower than arithmetic on whole rows.  Samples are processed
 # in chunks of about _CHUNK so that the rows stay in cache.
 
-_CHUNK = 16384
+_CHUNK = 8192
 # An RMS angle (radians, about 6e-7 degrees) below which a fit has converged:
 # far below the digits of any mocap file.
 _NEGLIGIBLE = 1e-8
@@ -321,41 +321,90 @@ def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     sign = np.where(q[0] < 0.0, -1.0, 1.0)
     w = q[0] * sign
     s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    half = np.arctan2(s, w)
+    angle = 2.0 * np.arctan2(s, w)
     small = s < 1e-8
-    scale = np.where(small, 2.0 / np.maximum(w, 1e-12), 2.0 * half / np.where(small, 1.0, s))
-    return q[1:] * (scale * sign), 2.0 * half
+    if small.any():
+        scale = np.where(small, 2.0 / np.maximum(w, 1e-12), angle / np.where(small, 1.0, s))
+    else:  # the same numbers without the masks
+        scale = angle / s
+    scale *= sign
+    return q[1:] * scale, angle
 
 
 def _qexp_t(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Unit quaternions (4, n) of rotation vectors (3, n) with norms ``angle`` (n,)."""
     half = 0.5 * angle
     small = angle < 1e-8
-    k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
-    return np.concatenate([np.cos(half)[None], v * k])
+    out = np.empty((4, *v.shape[1:]))
+    np.cos(half, out=out[0])
+    if small.any():
+        k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+    else:  # the same numbers without the masks
+        k = np.sin(half)
+        k /= angle
+    np.multiply(v, k, out=out[1:])
+    return out
 
 
-def _series_or(x: np.ndarray, closed, c0: float, c2: float, c4: float) -> np.ndarray:
+# Taylor coefficients (c0, c2, c4) of the SO(3) coefficient functions
+_SERIES_TERMS = {
+    "f1": (0.5, -1.0 / 24.0, 1.0 / 720.0),
+    "f2": (1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0),
+    "sinc": (1.0, -1.0 / 6.0, 1.0 / 120.0),
+    "g": (1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0),
+}
+
+
+def _coefficients(x: np.ndarray, *names: str) -> tuple[np.ndarray, ...]:
+    """The functions ``names`` (of ``f1``, ``f2``, ``sinc``, ``g``) of one
+    argument ``x`` (n,) >= 0: closed forms, or their Taylor series below
+    ``_SERIES``.  What they share (the masked argument, its square, its sine)
+    is computed once; where no argument (or every one) is small, the masks
+    and the unused branch are skipped: the same numbers as each function
+    on its own."""
     x2 = x * x
     small = x < _SERIES
-    with np.errstate(divide="ignore", invalid="ignore"):
-        exact = closed(np.where(small, 1.0, x))
-    return np.where(small, c0 + x2 * (c2 + x2 * c4), exact)
+    n_small = int(np.count_nonzero(small))
+    closed = {}
+    if n_small < small.size:
+        t = np.where(small, 1.0, x) if n_small else x
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tt = t * t
+            sin = np.sin(t) if "f2" in names or "sinc" in names else None
+            for name in names:
+                if name == "f1":
+                    closed[name] = (1.0 - np.cos(t)) / tt
+                elif name == "f2":
+                    closed[name] = (t - sin) / (tt * t)
+                elif name == "sinc":
+                    closed[name] = sin / t
+                else:
+                    h = 0.5 * t
+                    closed[name] = (1.0 - h / np.tan(h)) / tt
+    out = []
+    for name in names:
+        if n_small == 0:
+            out.append(closed[name])
+            continue
+        c0, c2, c4 = _SERIES_TERMS[name]
+        series = c0 + x2 * (c2 + x2 * c4)
+        out.append(series if n_small == small.size else np.where(small, series, closed[name]))
+    return tuple(out)
 
 
 def _f1(x: np.ndarray) -> np.ndarray:
     """(1 - cos x) / x**2."""
-    return _series_or(x, lambda t: (1.0 - np.cos(t)) / (t * t), 0.5, -1.0 / 24.0, 1.0 / 720.0)
+    return _coefficients(x, "f1")[0]
 
 
 def _f2(x: np.ndarray) -> np.ndarray:
     """(x - sin x) / x**3."""
-    return _series_or(x, lambda t: (t - np.sin(t)) / (t * t * t), 1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0)
+    return _coefficients(x, "f2")[0]
 
 
 def _sinc(x: np.ndarray) -> np.ndarray:
     """sin x / x."""
-    return _series_or(x, lambda t: np.sin(t) / t, 1.0, -1.0 / 6.0, 1.0 / 120.0)
+    return _coefficients(x, "sinc")[0]
 
 
 def _g(x: np.ndarray) -> np.ndarray:
@@ -363,7 +412,7 @@ def _g(x: np.ndarray) -> np.ndarray:
 
     Finite on [0, pi] (1/pi**2 at pi), which is all ``_qlog_t`` returns.
     """
-    return _series_or(x, lambda t: (1.0 - 0.5 * t / np.tan(0.5 * t)) / (t * t), 1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0)
+    return _coefficients(x, "g")[0]
 
 
 # Every operator met in the Jacobian of a slerp is a function of one rotation
@@ -389,16 +438,11 @@ def _pmatrix(p: tuple, w: np.ndarray, t2: np.ndarray) -> np.ndarray:
     pw = p2 * w
     d = p0 - p2 * t2
     k = p1 * w  # kx, ky, kz
-    if w.shape[-1] < _ROWS_IN_PLACE:
-        m = pw[:, None] * w[None]
-    else:
-        m = np.empty((3, 3, w.shape[-1]))
-        for i in range(3):
-            for j in range(3):
-                np.multiply(pw[i], w[j], out=m[i, j])
-    m[0, 0] += d
-    m[1, 1] += d
-    m[2, 2] += d
+    # every entry's product in one call, the diagonal's sums in one (the
+    # same operations on every entry as one entry at a time)
+    m = np.multiply(pw[:, None], w[None])
+    m9 = m.reshape(9, -1)
+    m9[::4] += d
     m[0, 1] -= k[2]
     m[1, 0] += k[2]
     m[0, 2] += k[1]
@@ -408,31 +452,30 @@ def _pmatrix(p: tuple, w: np.ndarray, t2: np.ndarray) -> np.ndarray:
     return m
 
 
-def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per-sample matrix product of (3, 3, n) and (3, k, n) -> (3, k, n).
+def _mm(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Per-sample matrix product of (3, 3, n) and (3, k, n) -> (3, k, n) (into ``out``).
 
-    Row by row into place (summed over the inner index in einsum's order, so
-    with its rounding): faster than einsum on rows of thousands of samples.
+    Each entry summed over the inner index left to right (einsum's order,
+    so with its rounding), a row of k entries at once: faster than einsum,
+    or than the entries one by one, on rows of any length.
     """
-    n = a.shape[-1]
-    if n < _ROWS_IN_PLACE:
-        return np.einsum("ijn,jkn->ikn", a, b, order="C")
-    out = np.empty((3, b.shape[1], n))
-    t = np.empty(n)
+    if out is None:
+        out = np.empty((3, *b.shape[1:]))
+    t = np.empty(b.shape[1:])
     for i in range(3):
-        for k in range(b.shape[1]):
-            o = out[i, k]
-            np.multiply(a[i, 0], b[0, k], out=o)
-            o += np.multiply(a[i, 1], b[1, k], out=t)
-            o += np.multiply(a[i, 2], b[2, k], out=t)
+        o = out[i]
+        np.multiply(a[i, 0], b[0], out=o)
+        o += np.multiply(a[i, 1], b[1], out=t)
+        o += np.multiply(a[i, 2], b[2], out=t)
     return out
 
 
-def _jr(s: np.ndarray | float, angle: np.ndarray, f1: np.ndarray | None = None) -> tuple:
+def _jr(s: np.ndarray | float, angle: np.ndarray, f: tuple | None = None) -> tuple:
     """s * J_r(s w) as a polynomial in [w]x, for |w| = ``angle`` and s >= 0
-    (``f1``: ``_f1(s * angle)``, when the caller has it already)."""
-    st = s * angle
-    return (s * np.ones_like(angle), -s * s * (_f1(st) if f1 is None else f1), s * s * s * _f2(st))
+    (``f``: ``_f1`` and ``_f2`` of ``s * angle``, when the caller has them
+    already).  Its constant term is ``s`` itself (a float or a row)."""
+    f1, f2 = _coefficients(s * angle, "f1", "f2") if f is None else f
+    return (s, -s * s * f1, s * s * s * f2)
 
 
 # A Jacobian is a pair of (3, 3, n) blocks (d/da, d/db), None for a zero block.
@@ -451,7 +494,13 @@ def _add_terms(*terms: np.ndarray | None) -> np.ndarray | None:
 
 
 def _slerp_t(
-    x: np.ndarray, jx: _Jac | None, z: np.ndarray, jz: _Jac | None, u: np.ndarray, log: tuple | None = None
+    x: np.ndarray,
+    jx: _Jac | None,
+    z: np.ndarray,
+    jz: _Jac | None,
+    u: np.ndarray,
+    log: tuple | None = None,
+    th_terms: tuple | None = None,
 ) -> tuple[np.ndarray, _Jac | None]:
     """Shorter-arc slerp ``y = x exp(u log(x^-1 z))`` on (4, n) rows, with its Jacobian.
 
@@ -459,7 +508,11 @@ def _slerp_t(
     by dx and z by dz moves y by
     ``(exp(-uK) - C exp(-K)) dx + C dz`` with ``C = u J_r(u w) J_r^-1(w)``,
     ``w = log(x^-1 z)`` and ``K = [w]x``; ``log``, when given, is that
-    ``(w, |w|)`` computed beforehand.
+    ``(w, |w|)`` computed beforehand, and ``th_terms`` its angle's
+    ``(_g, _sinc, _f1)`` (the last two needed with ``jx`` only).
+
+    Polynomials of the constant 1 (or 1/2) hold the float itself: the same
+    numbers as rows of ones, without the rows.
     """
     w, th = _qlog_t(_qmul_t(x * _CONJ, z)) if log is None else log
     ut = u * th
@@ -467,13 +520,19 @@ def _slerp_t(
     if jx is None and jz is None:
         return y, None
     t2 = th * th
-    f1_ut = _f1(ut)
-    c = _pmul(_jr(u, th, f1_ut), (np.ones_like(th), np.full_like(th, 0.5), _g(th)), t2)
+    # each function of an angle computed once for its every use
+    if jx is None:
+        f1_ut, f2_ut = _coefficients(ut, "f1", "f2")
+        g_th = _coefficients(th, "g")[0] if th_terms is None else th_terms[0]
+    else:
+        f1_ut, f2_ut, sinc_ut = _coefficients(ut, "f1", "f2", "sinc")
+        g_th, sinc_th, f1_th = _coefficients(th, "g", "sinc", "f1") if th_terms is None else th_terms
+    c = _pmul(_jr(u, th, (f1_ut, f2_ut)), (1.0, 0.5, g_th), t2)
     cm = _pmatrix(c, w, t2) if jz is not None else None
     am = None
     if jx is not None:
-        exp_mu = (np.ones_like(th), -u * _sinc(ut), u * u * f1_ut)
-        exp_m1 = (np.ones_like(th), -_sinc(th), _f1(th))
+        exp_mu = (1.0, -u * sinc_ut, u * u * f1_ut)
+        exp_m1 = (1.0, -sinc_th, f1_th)
         c_e = _pmul(c, exp_m1, t2)
         am = _pmatrix(tuple(p - q for p, q in zip(exp_mu, c_e, strict=True)), w, t2)
     jy = []
@@ -513,8 +572,10 @@ def _curve_t(
     if jacobian:
         j1 = (_pmatrix(_jr(1.0, ta), a, ta * ta), None)
         j2 = (None, _pmatrix(_jr(1.0, tb), b, tb * tb))
+        # the middle slerp's functions of its angle, once per segment
+        th12 = _coefficients(log12[1], "g", "sinc", "f1")
     else:
-        j1 = j2 = None
+        j1 = j2 = th12 = None
     if idx is not None:
         # np.take keeps the rows contiguous (fancy indexing of the last axis
         # would give sample-major strides, which einsum handles slowly)
@@ -522,6 +583,7 @@ def _curve_t(
         log12 = (np.take(log12[0], idx, axis=-1), log12[1][idx])
         if jacobian:
             j1, j2 = (np.take(j1[0], idx, axis=-1), None), (None, np.take(j2[1], idx, axis=-1))
+            th12 = tuple(f[idx] for f in th12)
     v = 1.0 - u
     q01 = _qmul_t(q0, _qexp_t(u * a, u * ta))
     q23 = _qmul_t(q3, _qexp_t(v * b, v * tb))
@@ -531,7 +593,7 @@ def _curve_t(
         j23 = (None, _pmatrix(_jr(v, tb), b, tb2))
     else:
         j01 = j23 = None
-    q12, j12 = _slerp_t(q1, j1, q2, j2, u, log12)
+    q12, j12 = _slerp_t(q1, j1, q2, j2, u, log12, th12)
     q012, j012 = _slerp_t(q01, j01, q12, j12, u)
     q123, j123 = _slerp_t(q12, j12, q23, j23, u)
     return _slerp_t(q012, j012, q123, j123, u)
@@ -557,8 +619,11 @@ def _residuals_t(
     if not jacobian:
         return r, None
     t2 = th * th
-    jinv = _pmatrix((np.ones_like(th), np.full_like(th, 0.5), _g(th)), r, t2)
-    return r, np.concatenate([_mm(jinv, js[0]), _mm(jinv, js[1])], axis=1)
+    jinv = _pmatrix((1.0, 0.5, _g(th)), r, t2)
+    j = np.empty((3, 6, th.shape[-1]))
+    _mm(jinv, js[0], out=j[:, :3])
+    _mm(jinv, js[1], out=j[:, 3:])
+    return r, j
 
 
 def _wrap_rotation_vector(v: np.ndarray) -> np.ndarray:
@@ -763,10 +828,42 @@ class _NormalEquations:
             cost[s0:s1] = np.add.reduceat(np.sum(r * r, axis=0), starts)
             if not jacobian:
                 continue
-            jj = j[0][:, None] * j[0][None] + j[1][:, None] * j[1][None] + j[2][:, None] * j[2][None]
-            jtj[s0:s1] = np.moveaxis(np.add.reduceat(jj, starts, axis=-1), -1, 0)
-            jtr[s0:s1] = np.add.reduceat(np.sum(j * r[:, None], axis=0), starts, axis=-1).T
+            jtj[s0:s1] = _gram_sums(j, starts)
+            jr = j[0] * r[0]
+            jr += np.multiply(j[1], r[1], out=j[0])  # (j's rows are not needed again)
+            jr += np.multiply(j[2], r[2], out=j[0])
+            jtr[s0:s1] = np.add.reduceat(jr, starts, axis=-1).T
         return cost, jtj, jtr
+
+
+# the entries (p, q), p <= q, of a symmetric 6x6 matrix, row by row
+_UPPER = np.triu_indices(6)
+
+
+def _gram_sums(j: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Sums ``sum_n j[:, :, n]^T j[:, :, n]`` (S, 6, 6) over the runs of
+    samples beginning at ``starts`` of Jacobians ``j`` (3, 6, n).
+
+    Each entry is ``j0p j0q + j1p j1q + j2p j2q`` summed left to right, as
+    the whole product of broadcast rows gives it; only the upper triangle
+    is computed (``x * y == y * x`` exactly) and mirrored.
+    """
+    n = j.shape[-1]
+    upper = np.empty((21, n))
+    t = np.empty((6, n))
+    r = 0
+    for p in range(6):
+        k = 6 - p
+        o = upper[r : r + k]
+        np.multiply(j[0, p], j[0, p:], out=o)
+        o += np.multiply(j[1, p], j[1, p:], out=t[:k])
+        o += np.multiply(j[2, p], j[2, p:], out=t[:k])
+        r += k
+    sums = np.add.reduceat(upper, starts, axis=-1)  # (21, S)
+    out = np.empty((len(starts), 6, 6))
+    out[:, _UPPER[0], _UPPER[1]] = sums.T
+    out[:, _UPPER[1], _UPPER[0]] = sums.T
+    return out
 
 
 def _tangent_space_start(
