@@ -955,14 +955,19 @@ def fit_rotation_tangents(
     jtr = np.zeros((n_segments, 6))
     # a second start: the Bezier fitted linearly in the tangent space at q0,
     # which is close to the optimum for the small turns of most segments;
-    # each segment starts from whichever of the two fits better (compared on
-    # the error alone: the Jacobian is built once, at the winner)
+    # each segment starts from whichever of the two fits better.  The second
+    # wins for most segments (about 7 in 8 of the samples): the Jacobian is
+    # built with its error, and again at the first only where that one wins
     cost[rows] = normal(rows, params[rows], jacobian=False)[0]
     guess = _tangent_space_start(q0, q3, seg[use], u[use], values[use], n_segments)[rows]
-    g_cost = normal(rows, guess, jacobian=False)[0]
+    g_cost, g_jtj, g_jtr = normal(rows, guess)
     take = np.isfinite(g_cost) & (g_cost < cost[rows])
-    params[rows[take]] = guess[take]
-    cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
+    won = rows[take]
+    params[won], cost[won], jtj[won], jtr[won] = guess[take], g_cost[take], g_jtj[take], g_jtr[take]
+    del g_jtj, g_jtr
+    kept = rows[~take]
+    if kept.size:
+        _, jtj[kept], jtr[kept] = normal(kept, params[kept])
     lam = np.full(n_segments, float(damping))
     eye = np.eye(6)
     # a segment whose samples the curve meets to within _NEGLIGIBLE radians
@@ -970,7 +975,7 @@ def fit_rotation_tangents(
     # otherwise chase rounding towards zero for every iteration)
     floor = _NEGLIGIBLE**2 * normal.count
 
-    for _ in range(iterations):
+    for it in range(iterations):
         rows = np.flatnonzero(active)
         if rows.size == 0:
             break
@@ -995,17 +1000,21 @@ def fit_rotation_tangents(
         finite = np.all(np.isfinite(trial), axis=-1)
         trial = np.where(finite[:, None], trial, params[rows])
 
-        c_new, jtj_new, jtr_new = normal(rows, trial)
+        # the error first: the Jacobian is needed only where a step is
+        # accepted and another will be taken from there
+        c_new = normal(rows, trial, jacobian=False)[0]
         better = finite & np.isfinite(c_new) & (c_new < cost[rows])
         ok = rows[better]
         converged = (cost[ok] - c_new[better] <= rtol * cost[ok]) | (c_new[better] <= floor[ok])
         params[ok], cost[ok] = trial[better], c_new[better]
-        jtj[ok], jtr[ok] = jtj_new[better], jtr_new[better]
         lam[ok] = np.maximum(lam[ok] / 3.0, 1e-12)
         bad = rows[~better]
         lam[bad] *= 4.0
         active[ok[converged]] = False
         # a segment whose steps keep failing sits at a minimum, to rounding
         active[bad[lam[bad] > 1e8]] = False
+        again = ok[~converged]
+        if again.size and it + 1 < iterations:
+            _, jtj[again], jtr[again] = normal(again, params[again])
 
     return params[:, :3].copy(), params[:, 3:].copy()
