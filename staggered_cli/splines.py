@@ -274,6 +274,24 @@ _CONJ = np.array([1.0, -1.0, -1.0, -1.0])[:, None]
 _SERIES = 0.05
 
 
+def _qmul_conj_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``conj(a) b`` of (4, n) quaternions: ``_qmul_t(a * _CONJ, b)`` with the
+    signs of a's vector part folded into the sums (``p - (-x) y`` is
+    ``p + x y`` exactly), without the negated copy of ``a``."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    if a.shape[-1] < _ROWS_IN_PLACE:
+        return np.stack(
+            [
+                aw * bw + ax * bx + ay * by + az * bz,
+                aw * bx - ax * bw - ay * bz + az * by,
+                aw * by + ax * bz - ay * bw - az * bx,
+                aw * bz - ax * by + ay * bx - az * bw,
+            ]
+        )
+    return _qmul_rows(a, b, _QMUL_CONJ_TERMS)
+
+
 def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (4, n) quaternions, w first."""
     aw, ax, ay, az = a
@@ -287,12 +305,16 @@ def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                 aw * bz + ax * by - ay * bx + az * bw,
             ]
         )
+    return _qmul_rows(a, b, _QMUL_TERMS)
+
+
+def _qmul_rows(a: np.ndarray, b: np.ndarray, terms: tuple) -> np.ndarray:
     # long rows: each summed left to right in place through one scratch row,
     # the same rounding without the temporaries
     shape = np.broadcast_shapes(a.shape[1:], b.shape[1:])
     out = np.empty((4, *shape))
     t = np.empty(shape)
-    for row, ((i, j), *rest) in zip(out, _QMUL_TERMS, strict=True):
+    for row, ((i, j), *rest) in zip(out, terms, strict=True):
         np.multiply(a[i], b[j], out=row)
         for sign, i, j in rest:
             np.multiply(a[i], b[j], out=t)
@@ -311,6 +333,8 @@ _QMUL_TERMS = (
     ((0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
     ((0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
 )
+# the same for conj(a) b: every term of a's vector part changes sign
+_QMUL_CONJ_TERMS = tuple((first, *((-sign, i, j) for sign, i, j in rest)) for first, *rest in _QMUL_TERMS)
 
 
 def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -514,7 +538,7 @@ def _slerp_t(
     Polynomials of the constant 1 (or 1/2) hold the float itself: the same
     numbers as rows of ones, without the rows.
     """
-    w, th = _qlog_t(_qmul_t(x * _CONJ, z)) if log is None else log
+    w, th = _qlog_t(_qmul_conj_t(x, z)) if log is None else log
     ut = u * th
     y = _qmul_t(x, _qexp_t(u * w, ut))
     if jx is None and jz is None:
@@ -568,7 +592,7 @@ def _curve_t(
     tb = np.sqrt(np.sum(b * b, axis=0))
     q1 = _qmul_t(q0, _qexp_t(a, ta))
     q2 = _qmul_t(q3, _qexp_t(b, tb))
-    log12 = _qlog_t(_qmul_t(q1 * _CONJ, q2))
+    log12 = _qlog_t(_qmul_conj_t(q1, q2))
     if jacobian:
         j1 = (_pmatrix(_jr(1.0, ta), a, ta * ta), None)
         j2 = (None, _pmatrix(_jr(1.0, tb), b, tb * tb))
@@ -607,15 +631,19 @@ def _residuals_t(
     values: np.ndarray,
     jacobian: bool,
     idx: np.ndarray | None = None,
+    curve: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Residuals ``log(values^-1 s(u))`` (3, n) and their Jacobian (3, 6, n).
+    """Residuals ``log(values^-1 s(u))`` (3, n) and their Jacobian (3, 6, n)
+    (and the curve ``s(u)`` itself written into ``curve`` (4, n), if given).
 
     ``x`` (6, n) holds (a, b) per sample, angles <= pi (or, with ``idx``,
     ``q0``, ``x``, ``q3`` are per segment, as in :func:`_curve_t`).
     ``|residual|`` is the angle between spline and sample.
     """
     s, js = _curve_t(q0, x[:3], x[3:], q3, u, jacobian, idx)
-    r, th = _qlog_t(_qmul_t(values * _CONJ, s))
+    if curve is not None:
+        curve[...] = s
+    r, th = _qlog_t(_qmul_conj_t(values, s))
     if not jacobian:
         return r, None
     t2 = th * th
@@ -794,6 +822,7 @@ class _NormalEquations:
 
     def __init__(self, q0, q3, seg, u, values, n_segments):
         order = np.argsort(seg, kind="stable")
+        self.order = order
         self.seg = seg[order]
         self.u = u[order]
         self.q0 = q0.T.copy()  # per segment: _curve_t gathers them
@@ -802,11 +831,19 @@ class _NormalEquations:
         self.count = np.bincount(seg, minlength=n_segments)
         self.first = np.concatenate([[0], np.cumsum(self.count)[:-1]])
 
+    def samples(self, rows: np.ndarray) -> np.ndarray:
+        """Indices (in this object's sorted order) of the samples of segments ``rows``."""
+        counts = self.count[rows]
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        return np.repeat(self.first[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
+
     def __call__(
-        self, rows: np.ndarray, x: np.ndarray, jacobian: bool = True
+        self, rows: np.ndarray, x: np.ndarray, jacobian: bool = True, curve: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Squared error (R,), J^T J (R, 6, 6) and J^T r (R, 6) of segments
-        ``rows`` at ``x`` (R, 6); without ``jacobian``, the error alone (and None, None)."""
+        ``rows`` at ``x`` (R, 6); without ``jacobian``, the error alone (and
+        None, None).  With ``curve`` (4, N), the spline at the samples is
+        written there, each at its sorted index."""
         counts = self.count[rows]
         offsets = np.concatenate([[0], np.cumsum(counts)])
         # sample indices of the selected segments, in segment order
@@ -823,7 +860,10 @@ class _NormalEquations:
             sl = idx[lo:hi]
             segs = rows[s0:s1]
             q0, q3 = self.q0[:, segs], self.q3[:, segs]
-            r, j = _residuals_t(q0, x[s0:s1].T, q3, self.u[sl], self.values[:, sl], jacobian, local[lo:hi] - s0)
+            s_out = None if curve is None else np.empty((4, hi - lo))
+            r, j = _residuals_t(q0, x[s0:s1].T, q3, self.u[sl], self.values[:, sl], jacobian, local[lo:hi] - s0, s_out)
+            if curve is not None:
+                curve[:, sl] = s_out
             starts = offsets[s0:s1] - lo
             cost[s0:s1] = np.add.reduceat(np.sum(r * r, axis=0), starts)
             if not jacobian:
@@ -889,7 +929,8 @@ def fit_rotation_tangents(
     iterations: int = 30,
     rtol: float = 1e-4,
     damping: float = 1e-3,
-) -> tuple[np.ndarray, np.ndarray]:
+    return_curve: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Fit the tangents of every rotation segment at once (batched Levenberg–Marquardt).
 
     Minimizes, per segment, the sum over its samples with ``0 < u < 1`` of
@@ -929,6 +970,10 @@ def fit_rotation_tangents(
     a, b : (S, 3) arrays
         Tangent rotation vectors (radians, angle at most pi): q1 = q0 exp(a),
         q2 = q3 exp(b).  Always finite.
+    at, curve : (M,) int and (M, 4) arrays, with ``return_curve`` only
+        The spline at samples ``at`` (of those given), as the fit last
+        evaluated it there: ``rotation_eval_at(q0, a, b, q3, seg[at],
+        u[at])`` bit for bit, without evaluating it again.
     """
     q0 = _as_points("q0", q0)
     q3 = _as_points("q3", q3)
@@ -946,8 +991,16 @@ def fit_rotation_tangents(
     active = np.bincount(seg[use], minlength=n_segments) >= 2
     use &= active[seg]
     if iterations == 0 or not np.any(active):
-        return a0, b0
+        return (a0, b0, np.zeros(0, dtype=np.intp), np.zeros((0, 4))) if return_curve else (a0, b0)
     normal = _NormalEquations(q0, q3, seg[use], u[use], values[use], n_segments)
+    # the spline at each sample at its segment's accepted tangents, and at the last trial
+    kept_curve = np.empty((4, normal.u.size)) if return_curve else None
+    trial_curve = np.empty((4, normal.u.size)) if return_curve else None
+
+    def accept(segments: np.ndarray) -> None:
+        if return_curve and segments.size:
+            at = normal.samples(segments)
+            kept_curve[:, at] = trial_curve[:, at]
 
     rows = np.flatnonzero(active)
     cost = np.zeros(n_segments)
@@ -958,11 +1011,12 @@ def fit_rotation_tangents(
     # each segment starts from whichever of the two fits better.  The second
     # wins for most segments (about 7 in 8 of the samples): the Jacobian is
     # built with its error, and again at the first only where that one wins
-    cost[rows] = normal(rows, params[rows], jacobian=False)[0]
+    cost[rows] = normal(rows, params[rows], jacobian=False, curve=kept_curve)[0]
     guess = _tangent_space_start(q0, q3, seg[use], u[use], values[use], n_segments)[rows]
-    g_cost, g_jtj, g_jtr = normal(rows, guess)
+    g_cost, g_jtj, g_jtr = normal(rows, guess, curve=trial_curve)
     take = np.isfinite(g_cost) & (g_cost < cost[rows])
     won = rows[take]
+    accept(won)
     params[won], cost[won], jtj[won], jtr[won] = guess[take], g_cost[take], g_jtj[take], g_jtr[take]
     del g_jtj, g_jtr
     kept = rows[~take]
@@ -1002,9 +1056,10 @@ def fit_rotation_tangents(
 
         # the error first: the Jacobian is needed only where a step is
         # accepted and another will be taken from there
-        c_new = normal(rows, trial, jacobian=False)[0]
+        c_new = normal(rows, trial, jacobian=False, curve=trial_curve)[0]
         better = finite & np.isfinite(c_new) & (c_new < cost[rows])
         ok = rows[better]
+        accept(ok)
         converged = (cost[ok] - c_new[better] <= rtol * cost[ok]) | (c_new[better] <= floor[ok])
         params[ok], cost[ok] = trial[better], c_new[better]
         lam[ok] = np.maximum(lam[ok] / 3.0, 1e-12)
@@ -1017,4 +1072,12 @@ def fit_rotation_tangents(
         if again.size and it + 1 < iterations:
             _, jtj[again], jtr[again] = normal(again, params[again])
 
-    return params[:, :3].copy(), params[:, 3:].copy()
+    a, b = params[:, :3].copy(), params[:, 3:].copy()
+    if not return_curve:
+        return a, b
+    # rotation_eval_at wraps the tangents again: a segment whose tangents
+    # that would change (an angle within rounding of pi) keeps none of its samples
+    same = np.all(_wrap_rotation_vector(a) == a, axis=-1) & np.all(_wrap_rotation_vector(b) == b, axis=-1)
+    sure = same[normal.seg]
+    at = np.flatnonzero(use)[normal.order[sure]]
+    return a, b, at, quat.normalize(np.ascontiguousarray(kept_curve[:, sure].T))

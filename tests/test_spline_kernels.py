@@ -164,11 +164,36 @@ def test_fit_jacobians_where_used_match_jacobians_everywhere(monkeypatch):
     a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
     call = splines._NormalEquations.__call__
 
-    def always(self, rows, x, jacobian=True):  # every evaluation with its Jacobian
-        cost, jtj, jtr = call(self, rows, x, True)
+    def always(self, rows, x, jacobian=True, curve=None):  # every evaluation with its Jacobian
+        cost, jtj, jtr = call(self, rows, x, True, curve)
         return (cost, jtj, jtr) if jacobian else (cost, None, None)
 
     monkeypatch.setattr(splines._NormalEquations, "__call__", always)
     a2, b2 = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
     _same(a2, a)
     _same(b2, b)
+
+
+@pytest.mark.parametrize("n", [3, 2047, 2048, 3000])
+def test_qmul_conj_is_the_product_with_the_negated_copy(n):
+    rng = np.random.default_rng(n)
+    a, b = rng.normal(size=(4, n)), rng.normal(size=(4, n))
+    a[:, ::4] = [[1.0], [0.0], [-0.0], [0.0]]  # signed zeros on both sides
+    b[:, ::3] = [[-0.0], [0.0], [1.0], [-0.0]]
+    _same(splines._qmul_conj_t(a, b), splines._qmul_t(a * splines._CONJ, b))
+
+
+@pytest.mark.parametrize("iterations", [0, 1, 30])
+def test_fit_returns_the_curve_rotation_eval_at_gives(iterations):
+    q0, q3, seg, u, values, n = _fit_case(13, 80)
+    u[::11] = 0.0  # samples the fit does not use
+    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations)
+    a2, b2, at, curve = splines.fit_rotation_tangents(
+        q0, q3, seg, u, values, n, iterations=iterations, return_curve=True
+    )
+    _same(a2, a)
+    _same(b2, b)
+    assert np.all(np.diff(np.sort(at)) > 0) and np.all((u[at] > 0.0) & (u[at] < 1.0))
+    if iterations:
+        assert at.size > 0.8 * seg.size
+    _same(curve, splines.rotation_eval_at(q0, a, b, q3, seg[at], u[at]))
