@@ -475,8 +475,19 @@ def _fit_segments(kind, p0, p3, gseg, u, values, n_seg):
         return a, b, values - splines.bezier_eval_at(p0, a, b, p3, gseg, u)
     values = quat.normalize(values)
     pick = _evenly_within_segments(gseg, FIT_SAMPLES)
-    a, b = splines.fit_rotation_tangents(p0, p3, gseg[pick], u[pick], values[pick], n_seg, iterations=FIT_ITERATIONS)
-    s_val = splines.rotation_eval_at(p0, a, b, p3, gseg, u)
+    a, b, at, fitted = splines.fit_rotation_tangents(
+        p0, p3, gseg[pick], u[pick], values[pick], n_seg, iterations=FIT_ITERATIONS, return_curve=True
+    )
+    # the spline where the fit last evaluated it is taken from the fit (the
+    # same bits), and evaluated at the other samples only
+    s_val = np.empty((len(u), 4))
+    done = pick[at]
+    s_val[done] = fitted
+    rest = np.ones(len(u), dtype=bool)
+    rest[done] = False
+    rest = np.flatnonzero(rest)
+    if rest.size:
+        s_val[rest] = splines.rotation_eval_at(p0, a, b, p3, gseg[rest], u[rest])
     return a, b, quat.hemisphere(quat.mul(quat.conj(s_val), values), quat.identity((1,)))
 
 

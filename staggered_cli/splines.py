@@ -260,7 +260,7 @@ def fit_translation_tangents(
 # several times slower than arithmetic on whole rows.  Samples are processed
 # in chunks of about _CHUNK so that the rows stay in cache.
 
-_CHUNK = 16384
+_CHUNK = 8192
 # An RMS angle (radians, about 6e-7 degrees) below which a fit has converged:
 # far below the digits of any mocap file.
 _NEGLIGIBLE = 1e-8
@@ -272,6 +272,24 @@ _CONJ = np.array([1.0, -1.0, -1.0, -1.0])[:, None]
 # Below this argument the closed forms of the SO(3) coefficient functions lose
 # digits to cancellation; their Taylor series (error < 1e-13) take over.
 _SERIES = 0.05
+
+
+def _qmul_conj_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``conj(a) b`` of (4, n) quaternions: ``_qmul_t(a * _CONJ, b)`` with the
+    signs of a's vector part folded into the sums (``p - (-x) y`` is
+    ``p + x y`` exactly), without the negated copy of ``a``."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    if a.shape[-1] < _ROWS_IN_PLACE:
+        return np.stack(
+            [
+                aw * bw + ax * bx + ay * by + az * bz,
+                aw * bx - ax * bw - ay * bz + az * by,
+                aw * by + ax * bz - ay * bw - az * bx,
+                aw * bz - ax * by + ay * bx - az * bw,
+            ]
+        )
+    return _qmul_rows(a, b, _QMUL_CONJ_TERMS)
 
 
 def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -287,12 +305,16 @@ def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                 aw * bz + ax * by - ay * bx + az * bw,
             ]
         )
+    return _qmul_rows(a, b, _QMUL_TERMS)
+
+
+def _qmul_rows(a: np.ndarray, b: np.ndarray, terms: tuple) -> np.ndarray:
     # long rows: each summed left to right in place through one scratch row,
     # the same rounding without the temporaries
     shape = np.broadcast_shapes(a.shape[1:], b.shape[1:])
     out = np.empty((4, *shape))
     t = np.empty(shape)
-    for row, ((i, j), *rest) in zip(out, _QMUL_TERMS, strict=True):
+    for row, ((i, j), *rest) in zip(out, terms, strict=True):
         np.multiply(a[i], b[j], out=row)
         for sign, i, j in rest:
             np.multiply(a[i], b[j], out=t)
@@ -311,6 +333,8 @@ _QMUL_TERMS = (
     ((0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
     ((0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
 )
+# the same for conj(a) b: every term of a's vector part changes sign
+_QMUL_CONJ_TERMS = tuple((first, *((-sign, i, j) for sign, i, j in rest)) for first, *rest in _QMUL_TERMS)
 
 
 def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -321,41 +345,90 @@ def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     sign = np.where(q[0] < 0.0, -1.0, 1.0)
     w = q[0] * sign
     s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    half = np.arctan2(s, w)
+    angle = 2.0 * np.arctan2(s, w)
     small = s < 1e-8
-    scale = np.where(small, 2.0 / np.maximum(w, 1e-12), 2.0 * half / np.where(small, 1.0, s))
-    return q[1:] * (scale * sign), 2.0 * half
+    if small.any():
+        scale = np.where(small, 2.0 / np.maximum(w, 1e-12), angle / np.where(small, 1.0, s))
+    else:  # the same numbers without the masks
+        scale = angle / s
+    scale *= sign
+    return q[1:] * scale, angle
 
 
 def _qexp_t(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Unit quaternions (4, n) of rotation vectors (3, n) with norms ``angle`` (n,)."""
     half = 0.5 * angle
     small = angle < 1e-8
-    k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
-    return np.concatenate([np.cos(half)[None], v * k])
+    out = np.empty((4, *v.shape[1:]))
+    np.cos(half, out=out[0])
+    if small.any():
+        k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+    else:  # the same numbers without the masks
+        k = np.sin(half)
+        k /= angle
+    np.multiply(v, k, out=out[1:])
+    return out
 
 
-def _series_or(x: np.ndarray, closed, c0: float, c2: float, c4: float) -> np.ndarray:
+# Taylor coefficients (c0, c2, c4) of the SO(3) coefficient functions
+_SERIES_TERMS = {
+    "f1": (0.5, -1.0 / 24.0, 1.0 / 720.0),
+    "f2": (1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0),
+    "sinc": (1.0, -1.0 / 6.0, 1.0 / 120.0),
+    "g": (1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0),
+}
+
+
+def _coefficients(x: np.ndarray, *names: str) -> tuple[np.ndarray, ...]:
+    """The functions ``names`` (of ``f1``, ``f2``, ``sinc``, ``g``) of one
+    argument ``x`` (n,) >= 0: closed forms, or their Taylor series below
+    ``_SERIES``.  What they share (the masked argument, its square, its sine)
+    is computed once; where no argument (or every one) is small, the masks
+    and the unused branch are skipped: the same numbers as each function
+    on its own."""
     x2 = x * x
     small = x < _SERIES
-    with np.errstate(divide="ignore", invalid="ignore"):
-        exact = closed(np.where(small, 1.0, x))
-    return np.where(small, c0 + x2 * (c2 + x2 * c4), exact)
+    n_small = int(np.count_nonzero(small))
+    closed = {}
+    if n_small < small.size:
+        t = np.where(small, 1.0, x) if n_small else x
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tt = t * t
+            sin = np.sin(t) if "f2" in names or "sinc" in names else None
+            for name in names:
+                if name == "f1":
+                    closed[name] = (1.0 - np.cos(t)) / tt
+                elif name == "f2":
+                    closed[name] = (t - sin) / (tt * t)
+                elif name == "sinc":
+                    closed[name] = sin / t
+                else:
+                    h = 0.5 * t
+                    closed[name] = (1.0 - h / np.tan(h)) / tt
+    out = []
+    for name in names:
+        if n_small == 0:
+            out.append(closed[name])
+            continue
+        c0, c2, c4 = _SERIES_TERMS[name]
+        series = c0 + x2 * (c2 + x2 * c4)
+        out.append(series if n_small == small.size else np.where(small, series, closed[name]))
+    return tuple(out)
 
 
 def _f1(x: np.ndarray) -> np.ndarray:
     """(1 - cos x) / x**2."""
-    return _series_or(x, lambda t: (1.0 - np.cos(t)) / (t * t), 0.5, -1.0 / 24.0, 1.0 / 720.0)
+    return _coefficients(x, "f1")[0]
 
 
 def _f2(x: np.ndarray) -> np.ndarray:
     """(x - sin x) / x**3."""
-    return _series_or(x, lambda t: (t - np.sin(t)) / (t * t * t), 1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0)
+    return _coefficients(x, "f2")[0]
 
 
 def _sinc(x: np.ndarray) -> np.ndarray:
     """sin x / x."""
-    return _series_or(x, lambda t: np.sin(t) / t, 1.0, -1.0 / 6.0, 1.0 / 120.0)
+    return _coefficients(x, "sinc")[0]
 
 
 def _g(x: np.ndarray) -> np.ndarray:
@@ -363,7 +436,7 @@ def _g(x: np.ndarray) -> np.ndarray:
 
     Finite on [0, pi] (1/pi**2 at pi), which is all ``_qlog_t`` returns.
     """
-    return _series_or(x, lambda t: (1.0 - 0.5 * t / np.tan(0.5 * t)) / (t * t), 1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0)
+    return _coefficients(x, "g")[0]
 
 
 # Every operator met in the Jacobian of a slerp is a function of one rotation
@@ -389,16 +462,11 @@ def _pmatrix(p: tuple, w: np.ndarray, t2: np.ndarray) -> np.ndarray:
     pw = p2 * w
     d = p0 - p2 * t2
     k = p1 * w  # kx, ky, kz
-    if w.shape[-1] < _ROWS_IN_PLACE:
-        m = pw[:, None] * w[None]
-    else:
-        m = np.empty((3, 3, w.shape[-1]))
-        for i in range(3):
-            for j in range(3):
-                np.multiply(pw[i], w[j], out=m[i, j])
-    m[0, 0] += d
-    m[1, 1] += d
-    m[2, 2] += d
+    # every entry's product in one call, the diagonal's sums in one (the
+    # same operations on every entry as one entry at a time)
+    m = np.multiply(pw[:, None], w[None])
+    m9 = m.reshape(9, -1)
+    m9[::4] += d
     m[0, 1] -= k[2]
     m[1, 0] += k[2]
     m[0, 2] += k[1]
@@ -408,31 +476,30 @@ def _pmatrix(p: tuple, w: np.ndarray, t2: np.ndarray) -> np.ndarray:
     return m
 
 
-def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per-sample matrix product of (3, 3, n) and (3, k, n) -> (3, k, n).
+def _mm(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Per-sample matrix product of (3, 3, n) and (3, k, n) -> (3, k, n) (into ``out``).
 
-    Row by row into place (summed over the inner index in einsum's order, so
-    with its rounding): faster than einsum on rows of thousands of samples.
+    Each entry summed over the inner index left to right (einsum's order,
+    so with its rounding), a row of k entries at once: faster than einsum,
+    or than the entries one by one, on rows of any length.
     """
-    n = a.shape[-1]
-    if n < _ROWS_IN_PLACE:
-        return np.einsum("ijn,jkn->ikn", a, b, order="C")
-    out = np.empty((3, b.shape[1], n))
-    t = np.empty(n)
+    if out is None:
+        out = np.empty((3, *b.shape[1:]))
+    t = np.empty(b.shape[1:])
     for i in range(3):
-        for k in range(b.shape[1]):
-            o = out[i, k]
-            np.multiply(a[i, 0], b[0, k], out=o)
-            o += np.multiply(a[i, 1], b[1, k], out=t)
-            o += np.multiply(a[i, 2], b[2, k], out=t)
+        o = out[i]
+        np.multiply(a[i, 0], b[0], out=o)
+        o += np.multiply(a[i, 1], b[1], out=t)
+        o += np.multiply(a[i, 2], b[2], out=t)
     return out
 
 
-def _jr(s: np.ndarray | float, angle: np.ndarray, f1: np.ndarray | None = None) -> tuple:
+def _jr(s: np.ndarray | float, angle: np.ndarray, f: tuple | None = None) -> tuple:
     """s * J_r(s w) as a polynomial in [w]x, for |w| = ``angle`` and s >= 0
-    (``f1``: ``_f1(s * angle)``, when the caller has it already)."""
-    st = s * angle
-    return (s * np.ones_like(angle), -s * s * (_f1(st) if f1 is None else f1), s * s * s * _f2(st))
+    (``f``: ``_f1`` and ``_f2`` of ``s * angle``, when the caller has them
+    already).  Its constant term is ``s`` itself (a float or a row)."""
+    f1, f2 = _coefficients(s * angle, "f1", "f2") if f is None else f
+    return (s, -s * s * f1, s * s * s * f2)
 
 
 # A Jacobian is a pair of (3, 3, n) blocks (d/da, d/db), None for a zero block.
@@ -451,7 +518,13 @@ def _add_terms(*terms: np.ndarray | None) -> np.ndarray | None:
 
 
 def _slerp_t(
-    x: np.ndarray, jx: _Jac | None, z: np.ndarray, jz: _Jac | None, u: np.ndarray, log: tuple | None = None
+    x: np.ndarray,
+    jx: _Jac | None,
+    z: np.ndarray,
+    jz: _Jac | None,
+    u: np.ndarray,
+    log: tuple | None = None,
+    th_terms: tuple | None = None,
 ) -> tuple[np.ndarray, _Jac | None]:
     """Shorter-arc slerp ``y = x exp(u log(x^-1 z))`` on (4, n) rows, with its Jacobian.
 
@@ -459,21 +532,31 @@ def _slerp_t(
     by dx and z by dz moves y by
     ``(exp(-uK) - C exp(-K)) dx + C dz`` with ``C = u J_r(u w) J_r^-1(w)``,
     ``w = log(x^-1 z)`` and ``K = [w]x``; ``log``, when given, is that
-    ``(w, |w|)`` computed beforehand.
+    ``(w, |w|)`` computed beforehand, and ``th_terms`` its angle's
+    ``(_g, _sinc, _f1)`` (the last two needed with ``jx`` only).
+
+    Polynomials of the constant 1 (or 1/2) hold the float itself: the same
+    numbers as rows of ones, without the rows.
     """
-    w, th = _qlog_t(_qmul_t(x * _CONJ, z)) if log is None else log
+    w, th = _qlog_t(_qmul_conj_t(x, z)) if log is None else log
     ut = u * th
     y = _qmul_t(x, _qexp_t(u * w, ut))
     if jx is None and jz is None:
         return y, None
     t2 = th * th
-    f1_ut = _f1(ut)
-    c = _pmul(_jr(u, th, f1_ut), (np.ones_like(th), np.full_like(th, 0.5), _g(th)), t2)
+    # each function of an angle computed once for its every use
+    if jx is None:
+        f1_ut, f2_ut = _coefficients(ut, "f1", "f2")
+        g_th = _coefficients(th, "g")[0] if th_terms is None else th_terms[0]
+    else:
+        f1_ut, f2_ut, sinc_ut = _coefficients(ut, "f1", "f2", "sinc")
+        g_th, sinc_th, f1_th = _coefficients(th, "g", "sinc", "f1") if th_terms is None else th_terms
+    c = _pmul(_jr(u, th, (f1_ut, f2_ut)), (1.0, 0.5, g_th), t2)
     cm = _pmatrix(c, w, t2) if jz is not None else None
     am = None
     if jx is not None:
-        exp_mu = (np.ones_like(th), -u * _sinc(ut), u * u * f1_ut)
-        exp_m1 = (np.ones_like(th), -_sinc(th), _f1(th))
+        exp_mu = (1.0, -u * sinc_ut, u * u * f1_ut)
+        exp_m1 = (1.0, -sinc_th, f1_th)
         c_e = _pmul(c, exp_m1, t2)
         am = _pmatrix(tuple(p - q for p, q in zip(exp_mu, c_e, strict=True)), w, t2)
     jy = []
@@ -509,12 +592,14 @@ def _curve_t(
     tb = np.sqrt(np.sum(b * b, axis=0))
     q1 = _qmul_t(q0, _qexp_t(a, ta))
     q2 = _qmul_t(q3, _qexp_t(b, tb))
-    log12 = _qlog_t(_qmul_t(q1 * _CONJ, q2))
+    log12 = _qlog_t(_qmul_conj_t(q1, q2))
     if jacobian:
         j1 = (_pmatrix(_jr(1.0, ta), a, ta * ta), None)
         j2 = (None, _pmatrix(_jr(1.0, tb), b, tb * tb))
+        # the middle slerp's functions of its angle, once per segment
+        th12 = _coefficients(log12[1], "g", "sinc", "f1")
     else:
-        j1 = j2 = None
+        j1 = j2 = th12 = None
     if idx is not None:
         # np.take keeps the rows contiguous (fancy indexing of the last axis
         # would give sample-major strides, which einsum handles slowly)
@@ -522,6 +607,7 @@ def _curve_t(
         log12 = (np.take(log12[0], idx, axis=-1), log12[1][idx])
         if jacobian:
             j1, j2 = (np.take(j1[0], idx, axis=-1), None), (None, np.take(j2[1], idx, axis=-1))
+            th12 = tuple(f[idx] for f in th12)
     v = 1.0 - u
     q01 = _qmul_t(q0, _qexp_t(u * a, u * ta))
     q23 = _qmul_t(q3, _qexp_t(v * b, v * tb))
@@ -531,7 +617,7 @@ def _curve_t(
         j23 = (None, _pmatrix(_jr(v, tb), b, tb2))
     else:
         j01 = j23 = None
-    q12, j12 = _slerp_t(q1, j1, q2, j2, u, log12)
+    q12, j12 = _slerp_t(q1, j1, q2, j2, u, log12, th12)
     q012, j012 = _slerp_t(q01, j01, q12, j12, u)
     q123, j123 = _slerp_t(q12, j12, q23, j23, u)
     return _slerp_t(q012, j012, q123, j123, u)
@@ -545,20 +631,27 @@ def _residuals_t(
     values: np.ndarray,
     jacobian: bool,
     idx: np.ndarray | None = None,
+    curve: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Residuals ``log(values^-1 s(u))`` (3, n) and their Jacobian (3, 6, n).
+    """Residuals ``log(values^-1 s(u))`` (3, n) and their Jacobian (3, 6, n)
+    (and the curve ``s(u)`` itself written into ``curve`` (4, n), if given).
 
     ``x`` (6, n) holds (a, b) per sample, angles <= pi (or, with ``idx``,
     ``q0``, ``x``, ``q3`` are per segment, as in :func:`_curve_t`).
     ``|residual|`` is the angle between spline and sample.
     """
     s, js = _curve_t(q0, x[:3], x[3:], q3, u, jacobian, idx)
-    r, th = _qlog_t(_qmul_t(values * _CONJ, s))
+    if curve is not None:
+        curve[...] = s
+    r, th = _qlog_t(_qmul_conj_t(values, s))
     if not jacobian:
         return r, None
     t2 = th * th
-    jinv = _pmatrix((np.ones_like(th), np.full_like(th, 0.5), _g(th)), r, t2)
-    return r, np.concatenate([_mm(jinv, js[0]), _mm(jinv, js[1])], axis=1)
+    jinv = _pmatrix((1.0, 0.5, _g(th)), r, t2)
+    j = np.empty((3, 6, th.shape[-1]))
+    _mm(jinv, js[0], out=j[:, :3])
+    _mm(jinv, js[1], out=j[:, 3:])
+    return r, j
 
 
 def _wrap_rotation_vector(v: np.ndarray) -> np.ndarray:
@@ -729,6 +822,7 @@ class _NormalEquations:
 
     def __init__(self, q0, q3, seg, u, values, n_segments):
         order = np.argsort(seg, kind="stable")
+        self.order = order
         self.seg = seg[order]
         self.u = u[order]
         self.q0 = q0.T.copy()  # per segment: _curve_t gathers them
@@ -737,11 +831,19 @@ class _NormalEquations:
         self.count = np.bincount(seg, minlength=n_segments)
         self.first = np.concatenate([[0], np.cumsum(self.count)[:-1]])
 
+    def samples(self, rows: np.ndarray) -> np.ndarray:
+        """Indices (in this object's sorted order) of the samples of segments ``rows``."""
+        counts = self.count[rows]
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        return np.repeat(self.first[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
+
     def __call__(
-        self, rows: np.ndarray, x: np.ndarray, jacobian: bool = True
+        self, rows: np.ndarray, x: np.ndarray, jacobian: bool = True, curve: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Squared error (R,), J^T J (R, 6, 6) and J^T r (R, 6) of segments
-        ``rows`` at ``x`` (R, 6); without ``jacobian``, the error alone (and None, None)."""
+        ``rows`` at ``x`` (R, 6); without ``jacobian``, the error alone (and
+        None, None).  With ``curve`` (4, N), the spline at the samples is
+        written there, each at its sorted index."""
         counts = self.count[rows]
         offsets = np.concatenate([[0], np.cumsum(counts)])
         # sample indices of the selected segments, in segment order
@@ -756,17 +858,54 @@ class _NormalEquations:
         for s0, s1 in zip(cuts[:-1], cuts[1:], strict=True):
             lo, hi = offsets[s0], offsets[s1]
             sl = idx[lo:hi]
+            if hi > lo and sl[-1] - sl[0] == hi - lo - 1:  # consecutive samples (idx increases): a view
+                sl = slice(int(sl[0]), int(sl[-1]) + 1)
             segs = rows[s0:s1]
             q0, q3 = self.q0[:, segs], self.q3[:, segs]
-            r, j = _residuals_t(q0, x[s0:s1].T, q3, self.u[sl], self.values[:, sl], jacobian, local[lo:hi] - s0)
+            s_out = None if curve is None else np.empty((4, hi - lo))
+            r, j = _residuals_t(q0, x[s0:s1].T, q3, self.u[sl], self.values[:, sl], jacobian, local[lo:hi] - s0, s_out)
+            if curve is not None:
+                curve[:, sl] = s_out
             starts = offsets[s0:s1] - lo
             cost[s0:s1] = np.add.reduceat(np.sum(r * r, axis=0), starts)
             if not jacobian:
                 continue
-            jj = j[0][:, None] * j[0][None] + j[1][:, None] * j[1][None] + j[2][:, None] * j[2][None]
-            jtj[s0:s1] = np.moveaxis(np.add.reduceat(jj, starts, axis=-1), -1, 0)
-            jtr[s0:s1] = np.add.reduceat(np.sum(j * r[:, None], axis=0), starts, axis=-1).T
+            jtj[s0:s1] = _gram_sums(j, starts)
+            jr = j[0] * r[0]
+            jr += np.multiply(j[1], r[1], out=j[0])  # (j's rows are not needed again)
+            jr += np.multiply(j[2], r[2], out=j[0])
+            jtr[s0:s1] = np.add.reduceat(jr, starts, axis=-1).T
         return cost, jtj, jtr
+
+
+# the entries (p, q), p <= q, of a symmetric 6x6 matrix, row by row
+_UPPER = np.triu_indices(6)
+
+
+def _gram_sums(j: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Sums ``sum_n j[:, :, n]^T j[:, :, n]`` (S, 6, 6) over the runs of
+    samples beginning at ``starts`` of Jacobians ``j`` (3, 6, n).
+
+    Each entry is ``j0p j0q + j1p j1q + j2p j2q`` summed left to right, as
+    the whole product of broadcast rows gives it; only the upper triangle
+    is computed (``x * y == y * x`` exactly) and mirrored.
+    """
+    n = j.shape[-1]
+    upper = np.empty((21, n))
+    t = np.empty((6, n))
+    r = 0
+    for p in range(6):
+        k = 6 - p
+        o = upper[r : r + k]
+        np.multiply(j[0, p], j[0, p:], out=o)
+        o += np.multiply(j[1, p], j[1, p:], out=t[:k])
+        o += np.multiply(j[2, p], j[2, p:], out=t[:k])
+        r += k
+    sums = np.add.reduceat(upper, starts, axis=-1)  # (21, S)
+    out = np.empty((len(starts), 6, 6))
+    out[:, _UPPER[0], _UPPER[1]] = sums.T
+    out[:, _UPPER[1], _UPPER[0]] = sums.T
+    return out
 
 
 def _tangent_space_start(
@@ -792,7 +931,8 @@ def fit_rotation_tangents(
     iterations: int = 30,
     rtol: float = 1e-4,
     damping: float = 1e-3,
-) -> tuple[np.ndarray, np.ndarray]:
+    return_curve: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Fit the tangents of every rotation segment at once (batched Levenberg–Marquardt).
 
     Minimizes, per segment, the sum over its samples with ``0 < u < 1`` of
@@ -832,6 +972,10 @@ def fit_rotation_tangents(
     a, b : (S, 3) arrays
         Tangent rotation vectors (radians, angle at most pi): q1 = q0 exp(a),
         q2 = q3 exp(b).  Always finite.
+    at, curve : (M,) int and (M, 4) arrays, with ``return_curve`` only
+        The spline at samples ``at`` (of those given), as the fit last
+        evaluated it there: ``rotation_eval_at(q0, a, b, q3, seg[at],
+        u[at])`` bit for bit, without evaluating it again.
     """
     q0 = _as_points("q0", q0)
     q3 = _as_points("q3", q3)
@@ -849,8 +993,16 @@ def fit_rotation_tangents(
     active = np.bincount(seg[use], minlength=n_segments) >= 2
     use &= active[seg]
     if iterations == 0 or not np.any(active):
-        return a0, b0
+        return (a0, b0, np.zeros(0, dtype=np.intp), np.zeros((0, 4))) if return_curve else (a0, b0)
     normal = _NormalEquations(q0, q3, seg[use], u[use], values[use], n_segments)
+    # the spline at each sample at its segment's accepted tangents, and at the last trial
+    kept_curve = np.empty((4, normal.u.size)) if return_curve else None
+    trial_curve = np.empty((4, normal.u.size)) if return_curve else None
+
+    def accept(segments: np.ndarray) -> None:
+        if return_curve and segments.size:
+            at = normal.samples(segments)
+            kept_curve[:, at] = trial_curve[:, at]
 
     rows = np.flatnonzero(active)
     cost = np.zeros(n_segments)
@@ -858,14 +1010,20 @@ def fit_rotation_tangents(
     jtr = np.zeros((n_segments, 6))
     # a second start: the Bezier fitted linearly in the tangent space at q0,
     # which is close to the optimum for the small turns of most segments;
-    # each segment starts from whichever of the two fits better (compared on
-    # the error alone: the Jacobian is built once, at the winner)
-    cost[rows] = normal(rows, params[rows], jacobian=False)[0]
+    # each segment starts from whichever of the two fits better.  The second
+    # wins for most segments (about 7 in 8 of the samples): the Jacobian is
+    # built with its error, and again at the first only where that one wins
+    cost[rows] = normal(rows, params[rows], jacobian=False, curve=kept_curve)[0]
     guess = _tangent_space_start(q0, q3, seg[use], u[use], values[use], n_segments)[rows]
-    g_cost = normal(rows, guess, jacobian=False)[0]
+    g_cost, g_jtj, g_jtr = normal(rows, guess, curve=trial_curve)
     take = np.isfinite(g_cost) & (g_cost < cost[rows])
-    params[rows[take]] = guess[take]
-    cost[rows], jtj[rows], jtr[rows] = normal(rows, params[rows])
+    won = rows[take]
+    accept(won)
+    params[won], cost[won], jtj[won], jtr[won] = guess[take], g_cost[take], g_jtj[take], g_jtr[take]
+    del g_jtj, g_jtr
+    kept = rows[~take]
+    if kept.size:
+        _, jtj[kept], jtr[kept] = normal(kept, params[kept])
     lam = np.full(n_segments, float(damping))
     eye = np.eye(6)
     # a segment whose samples the curve meets to within _NEGLIGIBLE radians
@@ -873,7 +1031,7 @@ def fit_rotation_tangents(
     # otherwise chase rounding towards zero for every iteration)
     floor = _NEGLIGIBLE**2 * normal.count
 
-    for _ in range(iterations):
+    for it in range(iterations):
         rows = np.flatnonzero(active)
         if rows.size == 0:
             break
@@ -898,17 +1056,30 @@ def fit_rotation_tangents(
         finite = np.all(np.isfinite(trial), axis=-1)
         trial = np.where(finite[:, None], trial, params[rows])
 
-        c_new, jtj_new, jtr_new = normal(rows, trial)
+        # the error first: the Jacobian is needed only where a step is
+        # accepted and another will be taken from there
+        c_new = normal(rows, trial, jacobian=False, curve=trial_curve)[0]
         better = finite & np.isfinite(c_new) & (c_new < cost[rows])
         ok = rows[better]
+        accept(ok)
         converged = (cost[ok] - c_new[better] <= rtol * cost[ok]) | (c_new[better] <= floor[ok])
         params[ok], cost[ok] = trial[better], c_new[better]
-        jtj[ok], jtr[ok] = jtj_new[better], jtr_new[better]
         lam[ok] = np.maximum(lam[ok] / 3.0, 1e-12)
         bad = rows[~better]
         lam[bad] *= 4.0
         active[ok[converged]] = False
         # a segment whose steps keep failing sits at a minimum, to rounding
         active[bad[lam[bad] > 1e8]] = False
+        again = ok[~converged]
+        if again.size and it + 1 < iterations:
+            _, jtj[again], jtr[again] = normal(again, params[again])
 
-    return params[:, :3].copy(), params[:, 3:].copy()
+    a, b = params[:, :3].copy(), params[:, 3:].copy()
+    if not return_curve:
+        return a, b
+    # rotation_eval_at wraps the tangents again: a segment whose tangents
+    # that would change (an angle within rounding of pi) keeps none of its samples
+    same = np.all(_wrap_rotation_vector(a) == a, axis=-1) & np.all(_wrap_rotation_vector(b) == b, axis=-1)
+    sure = same[normal.seg]
+    at = np.flatnonzero(use)[normal.order[sure]]
+    return a, b, at, quat.normalize(np.ascontiguousarray(kept_curve[:, sure].T))

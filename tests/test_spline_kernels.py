@@ -1,0 +1,199 @@
+"""The rotation spline's rewritten kernels give the bits of the plain formulas
+they replace (the same operations in the same order), on arguments that
+take every branch: none, some or all of the angles small, zero, pi, NaN."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from staggered_cli import quat, splines
+
+
+def _same(a, b) -> None:
+    a, b = np.asarray(a, dtype=float), np.broadcast_to(np.asarray(b, dtype=float), np.shape(a))
+    assert a.shape == b.shape
+    assert a.tobytes() == np.ascontiguousarray(b).tobytes()
+
+
+def _angles() -> list[np.ndarray]:
+    rng = np.random.default_rng(7)
+    return [
+        rng.random(300) * np.pi,  # none small
+        rng.random(300) * 0.049,  # all small
+        rng.permutation(np.concatenate([rng.random(150) * 0.04, rng.random(150) * 3.0])),
+        np.array([0.0, 1e-300, 0.0499999999, 0.05, 0.0500001, 1.0, np.pi, np.nan]),
+        np.array([np.nan, 2.0]),
+    ]
+
+
+# the plain formulas: each function on its own, masks always applied
+def _plain(x, closed, c0, c2, c4):
+    x2 = x * x
+    small = x < splines._SERIES
+    with np.errstate(divide="ignore", invalid="ignore"):
+        exact = closed(np.where(small, 1.0, x))
+    return np.where(small, c0 + x2 * (c2 + x2 * c4), exact)
+
+
+PLAIN = {
+    "f1": lambda x: _plain(x, lambda t: (1.0 - np.cos(t)) / (t * t), 0.5, -1.0 / 24.0, 1.0 / 720.0),
+    "f2": lambda x: _plain(x, lambda t: (t - np.sin(t)) / (t * t * t), 1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0),
+    "sinc": lambda x: _plain(x, lambda t: np.sin(t) / t, 1.0, -1.0 / 6.0, 1.0 / 120.0),
+    "g": lambda x: _plain(
+        x, lambda t: (1.0 - 0.5 * t / np.tan(0.5 * t)) / (t * t), 1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0
+    ),
+}
+
+
+@pytest.mark.parametrize("case", range(len(_angles())))
+def test_coefficients_are_the_plain_functions(case):
+    x = _angles()[case]
+    for names in (("f1",), ("f2",), ("sinc",), ("g",), ("f1", "f2"), ("f1", "f2", "sinc"), ("g", "sinc", "f1")):
+        for name, got in zip(names, splines._coefficients(x, *names), strict=True):
+            _same(got, PLAIN[name](x))
+    for name, f in (("f1", splines._f1), ("f2", splines._f2), ("sinc", splines._sinc), ("g", splines._g)):
+        _same(f(x), PLAIN[name](x))
+
+
+def _plain_qexp(v, angle):
+    half = 0.5 * angle
+    small = angle < 1e-8
+    k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+    return np.concatenate([np.cos(half)[None], v * k])
+
+
+def _plain_qlog(q):
+    sign = np.where(q[0] < 0.0, -1.0, 1.0)
+    w = q[0] * sign
+    s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    half = np.arctan2(s, w)
+    small = s < 1e-8
+    scale = np.where(small, 2.0 / np.maximum(w, 1e-12), 2.0 * half / np.where(small, 1.0, s))
+    return q[1:] * (scale * sign), 2.0 * half
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-3, 1e-9, 0.0])
+def test_qexp_and_qlog_are_the_plain_formulas(scale):
+    rng = np.random.default_rng(3)
+    for n in (5, 3000):
+        v = rng.normal(size=(3, n)) * scale
+        v[:, ::7] *= 1e-10  # some angles below 1e-8 among the others
+        angle = np.sqrt(np.sum(v * v, axis=0))
+        _same(splines._qexp_t(v, angle), _plain_qexp(v, angle))
+        q = rng.normal(size=(4, n))
+        q[1:] *= scale
+        q[1:, ::5] *= 1e-10
+        q[0, ::3] *= -1.0
+        q /= np.sqrt(np.sum(q * q, axis=0))
+        for got, want in zip(splines._qlog_t(q), _plain_qlog(q), strict=True):
+            _same(got, want)
+    edge = np.array([[1.0, -1.0, 0.0, -0.0, 0.6], [0.0, 0.0, 1.0, 1.0, 0.8], [0.0] * 5, [0.0] * 5])
+    for got, want in zip(splines._qlog_t(edge), _plain_qlog(edge), strict=True):
+        _same(got, want)
+
+
+@pytest.mark.parametrize("n", [1, 7, 2047, 2048, 5000])
+def test_matrix_kernels_are_the_plain_formulas(n):
+    rng = np.random.default_rng(n)
+    for k in (3, 6):
+        a, b = rng.normal(size=(3, 3, n)), rng.normal(size=(3, k, n))
+        _same(splines._mm(a, b), np.einsum("ijn,jkn->ikn", a, b, order="C"))
+        out = np.empty((3, 2 * k, n))
+        splines._mm(a, b, out=out[:, k:])
+        _same(out[:, k:], np.einsum("ijn,jkn->ikn", a, b, order="C"))
+    w = rng.normal(size=(3, n))
+    t2 = np.sum(w * w, axis=0)
+    for p in (tuple(rng.normal(size=(3, n))), (1.0, 0.5, rng.normal(size=n))):
+        p0, p1, p2 = p
+        d = p0 - p2 * t2
+        k_ = p1 * w
+        want = np.empty((3, 3, n))
+        # p2 * w[i] * w[j] is (p2 w_i) w_j, and adding d to the product is the kernel's order
+        for i in range(3):
+            for j in range(3):
+                base = (p2 * w[i]) * w[j]
+                entry = base + d if i == j else base
+                if (i, j) in ((0, 1), (1, 2), (2, 0)):
+                    entry = entry - k_[3 - i - j]
+                elif (i, j) in ((1, 0), (2, 1), (0, 2)):
+                    entry = entry + k_[3 - i - j]
+                want[i, j] = entry
+        _same(splines._pmatrix(p, w, t2), want)
+
+
+def test_gram_sums_are_the_whole_product():
+    rng = np.random.default_rng(11)
+    counts = rng.integers(1, 12, size=200)
+    n = int(counts.sum())
+    j = rng.normal(size=(3, 6, n))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    jj = j[0][:, None] * j[0][None] + j[1][:, None] * j[1][None] + j[2][:, None] * j[2][None]
+    want = np.moveaxis(np.add.reduceat(jj, starts, axis=-1), -1, 0)
+    _same(splines._gram_sums(j, starts), want)
+
+
+def _fit_case(seed: int, n_seg: int = 60):
+    rng = np.random.default_rng(seed)
+    knots = quat.normalize(rng.normal(size=(n_seg + 1, 4)) * [4.0, 1.0, 1.0, 1.0])
+    per = rng.integers(0, 10, size=n_seg)
+    seg = np.repeat(np.arange(n_seg), per)
+    u = rng.random(seg.size)
+    mid = quat.slerp(knots[seg], knots[seg + 1], u)
+    noise = quat.exp(rng.normal(size=(seg.size, 3)) * 0.05)
+    return knots[:-1], knots[1:], seg, u, quat.mul(mid, noise), n_seg
+
+
+@pytest.mark.parametrize("chunk", [16, 97, 1024])
+def test_fit_and_eval_do_not_depend_on_the_chunks(monkeypatch, chunk):
+    q0, q3, seg, u, values, n = _fit_case(5)
+    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n)
+    s = splines.rotation_eval_at(q0, a, b, q3, seg, u)
+    monkeypatch.setattr(splines, "_CHUNK", chunk)
+    a2, b2 = splines.fit_rotation_tangents(q0, q3, seg, u, values, n)
+    _same(a2, a)
+    _same(b2, b)
+    _same(splines.rotation_eval_at(q0, a, b, q3, seg, u), s)
+
+
+def test_fit_jacobians_where_used_match_jacobians_everywhere(monkeypatch):
+    """The fit builds J^T J only at the points a step is taken from, and
+    takes the errors of evaluations without it: with the Jacobian built at
+    every evaluation (as the plain loop does) the tangents are the same."""
+    q0, q3, seg, u, values, n = _fit_case(9, 120)
+    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
+    call = splines._NormalEquations.__call__
+
+    def always(self, rows, x, jacobian=True, curve=None):  # every evaluation with its Jacobian
+        cost, jtj, jtr = call(self, rows, x, True, curve)
+        return (cost, jtj, jtr) if jacobian else (cost, None, None)
+
+    monkeypatch.setattr(splines._NormalEquations, "__call__", always)
+    a2, b2 = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
+    _same(a2, a)
+    _same(b2, b)
+
+
+@pytest.mark.parametrize("n", [3, 2047, 2048, 3000])
+def test_qmul_conj_is_the_product_with_the_negated_copy(n):
+    rng = np.random.default_rng(n)
+    a, b = rng.normal(size=(4, n)), rng.normal(size=(4, n))
+    a[:, ::4] = [[1.0], [0.0], [-0.0], [0.0]]  # signed zeros on both sides
+    b[:, ::3] = [[-0.0], [0.0], [1.0], [-0.0]]
+    _same(splines._qmul_conj_t(a, b), splines._qmul_t(a * splines._CONJ, b))
+
+
+@pytest.mark.parametrize("iterations", [0, 1, 30])
+def test_fit_returns_the_curve_rotation_eval_at_gives(iterations):
+    q0, q3, seg, u, values, n = _fit_case(13, 80)
+    u[::11] = 0.0  # samples the fit does not use
+    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations)
+    a2, b2, at, curve = splines.fit_rotation_tangents(
+        q0, q3, seg, u, values, n, iterations=iterations, return_curve=True
+    )
+    _same(a2, a)
+    _same(b2, b)
+    assert np.all(np.diff(np.sort(at)) > 0) and np.all((u[at] > 0.0) & (u[at] < 1.0))
+    if iterations:
+        assert at.size > 0.8 * seg.size
+    _same(curve, splines.rotation_eval_at(q0, a, b, q3, seg[at], u[at]))
