@@ -334,11 +334,13 @@ def _catches_sigterm(pid: int) -> bool:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigterm_is_handled_like_ctrl_c(tmp_path):
-    # three copies of JUMPS' motion: about 8 s of extraction
+    # eight copies of JUMPS' motion: 22,016 frames, about 4 s of extraction
+    # (three copies took 8 s once; at 1.5 s the signal could come as the
+    # process was ending, after its handler was gone)
     data = mocap(JUMPS).read_bytes()
     head, body = data.split(b"MOTION", 1)
     lines = body.lstrip().splitlines()
-    frames = lines[3:] * 3
+    frames = lines[3:] * 8
     path = tmp_path / "long.bvh"
     path.write_bytes(head + b"MOTION\nFrames: %d\n" % len(frames) + lines[1] + b"\n" + b"\n".join(frames) + b"\n")
     out = tmp_path / "out.npz"
@@ -348,7 +350,7 @@ def test_sigterm_is_handled_like_ctrl_c(tmp_path):
     deadline = time.monotonic() + 60
     while not _catches_sigterm(proc.pid) and time.monotonic() < deadline:  # started, handler in place
         time.sleep(0.05)
-    time.sleep(1.0)  # now reading or extracting (about 8 s)
+    time.sleep(1.0)  # now reading or extracting
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err
