@@ -30,7 +30,7 @@ from staggered_cli.motion import (
     rotation_columns,
 )
 
-from .conftest import dev_motion
+from .conftest import SAMPLES, dev_motion
 
 # a leg whose knee has two rotation channels and whose ankle has one
 FEW_CHANNELS = """HIERARCHY
@@ -248,3 +248,43 @@ def test_real_c3d_figure_height():
     assert m.units == "mm" and m.rate == 50.0
     # pelvis, thigh, shank and foot markers only: the lower body's box, in millimetres (measured)
     assert m.figure_height() == pytest.approx(914.5000272542238, rel=1e-9)
+
+
+def _rotations_joint_by_joint(sk, channels):
+    """The plain form: each joint's rotations over the whole clip, then
+    each joint's whole track unrolled on its own."""
+    from staggered_cli.motion import rotation_columns
+
+    rot = quat.identity((len(channels), sk.n_joints))
+    for j, cols, order in rotation_columns(sk):
+        if len(order) == 3:
+            rot[:, j] = quat.from_euler(channels[:, cols], order)
+        else:
+            q = quat.identity((len(channels),))
+            for col, axis in zip(cols, order, strict=True):
+                q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[:, col])))
+            rot[:, j] = q
+    for j in range(sk.n_joints):
+        rot[:, j] = quat.unroll(rot[:, j], axis=0)
+    return rot
+
+
+@pytest.mark.parametrize("block", [4, 28, 1 << 18])
+def test_rotations_made_in_blocks_of_frames_are_those_of_whole_tracks(monkeypatch, block):
+    """Blocks of a few frames (a block boundary between every few frames),
+    with flips that cross boundaries and exact half-turn steps (dot 0,
+    where the parity must carry over unchanged): the same bits."""
+    from staggered_cli import motion as motion_module
+
+    m = parse_bvh((SAMPLES / "march.bvh").read_bytes())
+    ch = np.array(m.channels, copy=True)
+    rng = np.random.default_rng(7)
+    rows = rng.choice(len(ch), size=len(ch) // 3, replace=False)
+    ch[rows, 3:] += rng.choice([180.0, -360.0, 540.0, 90.0], size=(len(rows), ch.shape[1] - 3))
+    ch[5:9, 3:6] = [[0.0, 0.0, 0.0], [180.0, 0.0, 0.0], [0.0, 180.0, 0.0], [90.0, 90.0, 90.0]]
+    want = _rotations_joint_by_joint(m.skeleton, ch)
+    monkeypatch.setattr(motion_module, "_ROTATION_BLOCK", block)
+    got = motion_module.local_rotations_from_channels(m.skeleton, ch)
+    assert got.tobytes() == want.tobytes()
+    raw = motion_module.local_rotations_from_channels(m.skeleton, ch, unroll=False)
+    assert np.array_equal(np.abs(quat.dot(raw, got)), np.abs(quat.dot(got, got)))  # only signs differ
