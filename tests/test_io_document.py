@@ -722,3 +722,21 @@ def test_a_step_writes_over_its_own_mapped_input(march_npz, tmp_path, mapped_eve
     assert result.exit_code == 0, result.stderr
     assert a.read_bytes() == b.read_bytes()
     assert _run("bake", a, "-o", tmp_path / "a.bvh").exit_code == 0
+
+
+def test_a_file_that_cannot_be_mapped_is_read(march_npz, tmp_path, mapped_everything, monkeypatch):
+    class Unmappable:  # a file system without mappings
+        madvise = None
+
+        def __init__(self, *args, **kwargs):
+            raise OSError("no mappings here")
+
+    monkeypatch.setattr(document.mmap, "mmap", Unmappable)
+    path = tmp_path / "m.stag"
+    path.write_bytes(march_npz)
+    _, from_bytes = parse_document(march_npz, NAME)
+    with open(path, "rb") as fh:
+        _, from_file = parse_document(fh, NAME)
+    for key, value in from_file.items():
+        np.testing.assert_array_equal(value, from_bytes[key], err_msg=key)
+        assert value.flags.writeable, key  # read, not mapped

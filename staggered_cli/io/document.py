@@ -593,12 +593,16 @@ class _StoredMember:
         self._check()
         return got
 
-    def map_rest(self, fd: int) -> tuple[mmap.mmap, int]:
+    def map_rest(self, fd: int) -> tuple[mmap.mmap, int] | None:
         """The rest of the member mapped read-only from the file ``fd``, and
         the offset of its first byte in the mapping; its CRC is checked a
-        piece at a time, each piece's pages released once read."""
+        piece at a time, each piece's pages released once read.  None (and
+        nothing read) where the file cannot be mapped: then it is read."""
         start = self._at - self._at % mmap.ALLOCATIONGRANULARITY
-        mapped = mmap.mmap(fd, self._at + self._left - start, offset=start, access=mmap.ACCESS_READ)
+        try:
+            mapped = mmap.mmap(fd, self._at + self._left - start, offset=start, access=mmap.ACCESS_READ)
+        except (OSError, ValueError):  # a file system without mappings, a file cut short meanwhile
+            return None
         view = memoryview(mapped)
         try:
             for lo in range(self._at - start, len(mapped), _READ_CHUNK):
@@ -694,8 +698,10 @@ def _read_npy_member(
                 f"shape {list(shape)} needs {nbytes:,}",
             )
         if fd is not None and not fortran and ndtype == dtype and isinstance(fp, _StoredMember):
-            mapped, at = fp.map_rest(fd)  # read-only pages of the file, resident only while used
-            return np.frombuffer(mapped, dtype=dtype, count=nbytes // dtype.itemsize, offset=at).reshape(shape)
+            got = fp.map_rest(fd)  # read-only pages of the file, resident only while used
+            if got is not None:
+                mapped, at = got
+                return np.frombuffer(mapped, dtype=dtype, count=nbytes // dtype.itemsize, offset=at).reshape(shape)
         # straight into the array's own (numpy-allocated, aligned) buffer: no copy
         raw = np.empty(nbytes // ndtype.itemsize if ndtype.itemsize else 0, dtype=ndtype)
         view = memoryview(raw.reshape(-1)).cast("B")
