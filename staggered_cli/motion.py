@@ -304,17 +304,15 @@ def local_rotations_from_channels(
 
     Made a block of frames at a time, all joints of a block while its
     channels are in cache (a joint's column of a long clip's channels,
-    read alone, cost 50x the time for 32x the frames), and unrolled the
-    same way: the sign flips of a block continue the parity of the block
-    before, from the dot products of the rotations as made (the same signs
-    as unrolling each joint's whole track)."""
+    read alone, cost 50x the time for 32x the frames), and unrolled in
+    place along the frames, all joints at once, a block of frames at a time
+    (each joint's signs are its own: those of unrolling its track alone)."""
     T = channels.shape[0]
     J = skeleton.n_joints
     rot = quat.identity((T, J))
     wanted = None if joints is None else {int(j) for j in joints}
     columns = [(j, cols, order) for j, cols, order in rotation_columns(skeleton) if wanted is None or j in wanted]
     step = max(1, _ROTATION_BLOCK // max(4 * J, 1))
-    last = parity = None  # the block before's last rotations as made, and its flips
     for lo in range(0, T, step):
         block = rot[lo : lo + step]
         for j, cols, order in columns:
@@ -325,15 +323,8 @@ def local_rotations_from_channels(
                 for col, axis in zip(cols, order, strict=True):
                     q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[lo : lo + step, col])))
                 block[:, j] = q
-        if not unroll:
-            continue
-        back = quat.dot(block[1:], block[:-1]) < 0.0  # (n-1, J)
-        first = np.zeros((1, J), dtype=bool) if last is None else (quat.dot(block[:1], last[None]) < 0.0)
-        flips = np.logical_xor.accumulate(np.concatenate([first, back]), axis=0)
-        if parity is not None:
-            flips ^= parity
-        last, parity = block[-1].copy(), flips[-1]
-        block *= (1.0 - 2.0 * flips)[..., None]
+    if unroll:
+        quat.unroll_in_place(rot)
     return rot
 
 

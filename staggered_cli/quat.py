@@ -164,6 +164,12 @@ def ominus(c: np.ndarray, a: np.ndarray) -> np.ndarray:
 def unroll(q: np.ndarray, axis: int = 0) -> np.ndarray:
     """Flip signs along ``axis`` so that consecutive quaternions have dot >= 0."""
     q = np.moveaxis(np.array(q, dtype=float), axis, 0)  # the result: the one copy
+    unroll_in_place(q)
+    return np.moveaxis(q, 0, axis)
+
+
+def unroll_in_place(q: np.ndarray) -> None:
+    """:func:`unroll` along the first axis of the writable float array ``q``, in place."""
     T = q.shape[0]
     if T > 1:
         # a block of steps at a time, and the signs applied in place: no
@@ -179,7 +185,6 @@ def unroll(q: np.ndarray, axis: int = 0) -> np.ndarray:
         for lo in range(0, T - 1, rows):
             hi = min(lo + rows, T - 1)
             q[lo + 1 : hi + 1] *= (1.0 - 2.0 * flips[lo:hi])[..., None]
-    return np.moveaxis(q, 0, axis)
 
 
 #: Quaternion components handled at once by :func:`unroll` (about 2 MB).

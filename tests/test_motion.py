@@ -271,9 +271,9 @@ def _rotations_joint_by_joint(sk, channels):
 
 @pytest.mark.parametrize("block", [4, 28, 1 << 18])
 def test_rotations_made_in_blocks_of_frames_are_those_of_whole_tracks(monkeypatch, block):
-    """Blocks of a few frames (a block boundary between every few frames),
-    with flips that cross boundaries and exact half-turn steps (dot 0,
-    where the parity must carry over unchanged): the same bits."""
+    """Blocks of a few frames, made and unrolled (a block boundary between
+    every few frames), with flips that cross boundaries and exact half-turn
+    steps (dot 0, where the parity must carry over unchanged): the same bits."""
     from staggered_cli import motion as motion_module
 
     m = parse_bvh((SAMPLES / "march.bvh").read_bytes())
@@ -284,6 +284,7 @@ def test_rotations_made_in_blocks_of_frames_are_those_of_whole_tracks(monkeypatc
     ch[5:9, 3:6] = [[0.0, 0.0, 0.0], [180.0, 0.0, 0.0], [0.0, 180.0, 0.0], [90.0, 90.0, 90.0]]
     want = _rotations_joint_by_joint(m.skeleton, ch)
     monkeypatch.setattr(motion_module, "_ROTATION_BLOCK", block)
+    monkeypatch.setattr(quat, "_UNROLL_BLOCK", block)
     got = motion_module.local_rotations_from_channels(m.skeleton, ch)
     assert got.tobytes() == want.tobytes()
     raw = motion_module.local_rotations_from_channels(m.skeleton, ch, unroll=False)
