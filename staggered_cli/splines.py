@@ -372,10 +372,10 @@ def _qexp_t(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 # Taylor coefficients (c0, c2, c4) of the SO(3) coefficient functions
 _SERIES_TERMS = {
-    "f1": (0.5, -1.0 / 24.0, 1.0 / 720.0),
-    "f2": (1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0),
-    "sinc": (1.0, -1.0 / 6.0, 1.0 / 120.0),
-    "g": (1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0),
+    "f1": (0.5, -1.0 / 24.0, 1.0 / 720.0),  # (1 - cos x) / x**2
+    "f2": (1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0),  # (x - sin x) / x**3
+    "sinc": (1.0, -1.0 / 6.0, 1.0 / 120.0),  # sin x / x
+    "g": (1.0 / 12.0, 1.0 / 720.0, 1.0 / 30240.0),  # see _g
 }
 
 
@@ -414,21 +414,6 @@ def _coefficients(x: np.ndarray, *names: str) -> tuple[np.ndarray, ...]:
         series = c0 + x2 * (c2 + x2 * c4)
         out.append(series if n_small == small.size else np.where(small, series, closed[name]))
     return tuple(out)
-
-
-def _f1(x: np.ndarray) -> np.ndarray:
-    """(1 - cos x) / x**2."""
-    return _coefficients(x, "f1")[0]
-
-
-def _f2(x: np.ndarray) -> np.ndarray:
-    """(x - sin x) / x**3."""
-    return _coefficients(x, "f2")[0]
-
-
-def _sinc(x: np.ndarray) -> np.ndarray:
-    """sin x / x."""
-    return _coefficients(x, "sinc")[0]
 
 
 def _g(x: np.ndarray) -> np.ndarray:
@@ -833,9 +818,14 @@ class _NormalEquations:
 
     def samples(self, rows: np.ndarray) -> np.ndarray:
         """Indices (in this object's sorted order) of the samples of segments ``rows``."""
+        return self._spans(rows)[2]
+
+    def _spans(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sample counts (R,) and offsets (R+1,) of segments ``rows``, and
+        their samples' indices, in segment order."""
         counts = self.count[rows]
         offsets = np.concatenate([[0], np.cumsum(counts)])
-        return np.repeat(self.first[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
+        return counts, offsets, np.repeat(self.first[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
 
     def __call__(
         self, rows: np.ndarray, x: np.ndarray, jacobian: bool = True, curve: np.ndarray | None = None
@@ -844,10 +834,7 @@ class _NormalEquations:
         ``rows`` at ``x`` (R, 6); without ``jacobian``, the error alone (and
         None, None).  With ``curve`` (4, N), the spline at the samples is
         written there, each at its sorted index."""
-        counts = self.count[rows]
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        # sample indices of the selected segments, in segment order
-        idx = np.repeat(self.first[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
+        counts, offsets, idx = self._spans(rows)
         local = np.repeat(np.arange(rows.size), counts)
         # chunk boundaries at segment starts
         group = offsets[:-1] // _CHUNK
