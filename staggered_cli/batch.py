@@ -122,8 +122,10 @@ def _stdio(data) -> Iterator[tuple[_Pipe, io.StringIO]]:
     """
     saved = sys.stdin, sys.stdout, sys.stderr
     out, err = _Pipe(), io.StringIO()
-    pipe = _Pipe(data) if isinstance(data, bytes | bytearray) else _Pipe()
-    if not isinstance(data, bytes | bytearray):
+    if isinstance(data, bytes | bytearray):
+        pipe = _Pipe(data)
+    else:
+        pipe = _Pipe()
         pipe.document = data
     stdin = io.TextIOWrapper(pipe)
     stdout = io.TextIOWrapper(out, write_through=True)

@@ -1000,8 +1000,9 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             )
             text = b""
             if "source.bvh" in arrays:
-                text = arr("source.bvh", 1, "u").tobytes()
-                release_mapped(arrays["source.bvh"])
+                member = arr("source.bvh", 1, "u")
+                text = member.tobytes()
+                release_mapped(member)
             sha = str(manifest.get("source", {}).get("sha256", ""))
             need(
                 not text or not sha or hashlib.sha256(text).hexdigest() == sha,
