@@ -363,6 +363,33 @@ def test_new_refuses_bad_times(times, needle):
     one_line_error(run(["new", "-", "--times", times, "-o", "-"], input=data), 2, needle)
 
 
+@pytest.mark.parametrize(
+    "name,frame_time", [("cmu_02_01_walk.bvh", "0.008333"), ("bandai2_run_normal_001.bvh", "0.0333333")]
+)
+def test_new_takes_times_on_the_nominal_or_the_written_clock(name, frame_time):
+    """2.2 s is frame 264 at 120 Hz and frame 66 at 30 Hz, although the files
+    write 0.008333 and 0.0333333; times copied from `info` (the written
+    clock, six digits) pass too.  Both land on the written clock."""
+    m, data = _keys(name, [0, 10, 20, 30])
+    assert m.frame_time_text.strip() == frame_time
+    ft, rate = m.frame_time, round(1 / m.frame_time)
+    last = round(2.2 * rate)
+    for times, expect in [
+        ([0, 0.4, 0.9, 2.2], np.array([0, 0.4, 0.9, 2.2]) * rate * ft),  # nominal: scaled onto the written clock
+        ([0, 0.4, 0.9, last * ft], np.array([0, 0.4, 0.9, last * ft])),  # written: kept
+        ([0, 0.4, 0.9, float(f"{last * ft:.6g}")], None),  # as `info` prints it
+    ]:
+        r = run(["new", "-", "--times", ",".join(map(repr, times)), "-o", "-"], input=data)
+        assert r.exit_code == 0, r.stderr
+        doc = load(r.stdout_bytes)
+        assert doc.n_frames == last + 1
+        assert doc.pose_t[-1] == last * ft
+        if expect is not None:
+            assert np.abs(doc.pose_t - expect).max() < 1e-12
+    # a time between frames on both clocks is still refused
+    one_line_error(run(["new", "-", "--times", "0,0.4,0.9,2.21", "-o", "-"], input=data), 2, "not on a frame")
+
+
 def test_new_refuses_a_single_key_and_a_c3d():
     _, data = _keys("bandai2_run_normal_001.bvh", [5])
     one_line_error(run(["new", "-", "-o", "-"], input=data), 2, "at least two key poses")

@@ -21,7 +21,7 @@ from .. import quat
 from ..document import Document, require_bvh, variable_layout
 from ..errors import DataError, UsageError
 from ..kinds import ops_for
-from ..motion import BvhMotion, channels_from_local
+from ..motion import BvhMotion, channels_from_local, nominal_rate
 from ..representation import ROTATION, TRANSLATION, Layer, Track, knots_from_poses, pose_arrays
 from ..sampling import reference_channels
 from .edit_pose import joint_mask
@@ -225,7 +225,17 @@ def _with_knot_values(tr: Track, knot_v: np.ndarray) -> Track:
 
 def check_key_times(times: np.ndarray, n_keys: int, frame_time: float) -> np.ndarray:
     """Key times (seconds) checked: one per key, from 0, strictly increasing,
-    the last on a frame of ``frame_time``.  Raises UsageError."""
+    the last on a frame of ``frame_time`` (within a thousandth of a frame,
+    so that times copied from ``info``'s six digits pass).  Raises
+    UsageError.
+
+    A written frame time is often a rounded reciprocal of the rate
+    (``0.008333`` for 120 Hz).  Times typed on the nominal rate's clock
+    (:func:`~staggered_cli.motion.nominal_rate`: 2.2 s is frame 264 at
+    120 Hz) are then carried to the written frame time's clock, which frames
+    and pose times use everywhere else (frame 264 is at 2.199912 s); times
+    already on it stay.  The last time is returned exactly on its frame.
+    """
     times = np.asarray(times, dtype=float)
     if times.shape != (n_keys,):
         raise UsageError(f"--times gives {len(times)} times for the file's {n_keys} frames")
@@ -233,13 +243,18 @@ def check_key_times(times: np.ndarray, n_keys: int, frame_time: float) -> np.nda
         raise UsageError("--times must increase strictly")
     if abs(times[0]) > 1e-9:
         raise UsageError(f"--times must start at 0 (the first key is the motion's first frame), got {times[0]:g}")
-    last = times[-1] / frame_time
-    if abs(last - round(last)) > 1e-6:
+    rate = nominal_rate(frame_time)
+    written, nominal = times[-1] / frame_time, times[-1] * rate
+    on_nominal = abs(nominal - round(nominal)) < abs(written - round(written))
+    frame = nominal if on_nominal else written
+    if abs(frame - round(frame)) > 1e-3:
         raise UsageError(
             f"the last time {times[-1]:g} s is not on a frame at the file's frame time {frame_time:g} s "
-            f"(nearest: {np.floor(last) * frame_time:.6g} or {np.ceil(last) * frame_time:.6g} s)"
+            f"(nearest: {np.floor(nominal) / rate:.6g} or {np.ceil(nominal) / rate:.6g} s)"
         )
-    return times
+    out = times * (rate * frame_time) if on_nominal else times.copy()
+    out[-1] = round(frame) * frame_time
+    return out
 
 
 def blocking_velocities(t: np.ndarray, values: np.ndarray) -> np.ndarray:
