@@ -357,14 +357,14 @@ def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _qexp_t(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Unit quaternions (4, n) of rotation vectors (3, n) with norms ``angle`` (n,)."""
-    half = 0.5 * angle
     small = angle < 1e-8
     out = np.empty((4, *v.shape[1:]))
-    np.cos(half, out=out[0])
+    sin = np.empty(angle.shape)
+    quat.sin_cos(0.5 * angle, out=(sin, out[0]))
     if small.any():
-        k = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+        k = np.where(small, 0.5 - angle * angle / 48.0, sin / np.where(small, 1.0, angle))
     else:  # the same numbers without the masks
-        k = np.sin(half)
+        k = sin
         k /= angle
     np.multiply(v, k, out=out[1:])
     return out
@@ -382,8 +382,8 @@ _SERIES_TERMS = {
 def _coefficients(x: np.ndarray, *names: str) -> tuple[np.ndarray, ...]:
     """The functions ``names`` (of ``f1``, ``f2``, ``sinc``, ``g``) of one
     argument ``x`` (n,) >= 0: closed forms, or their Taylor series below
-    ``_SERIES``.  What they share (the masked argument, its square, its sine)
-    is computed once; where no argument (or every one) is small, the masks
+    ``_SERIES``.  What they share (the masked argument, its square, the
+    tangent of its half) is computed once; where no argument (or every one) is small, the masks
     and the unused branch are skipped: the same numbers as each function
     on its own."""
     x2 = x * x
@@ -394,17 +394,23 @@ def _coefficients(x: np.ndarray, *names: str) -> tuple[np.ndarray, ...]:
         t = np.where(small, 1.0, x) if n_small else x
         with np.errstate(divide="ignore", invalid="ignore"):
             tt = t * t
-            sin = np.sin(t) if "f2" in names or "sinc" in names else None
+            # every function from one tangent of the half angle, u = tan(t/2):
+            # sin t = 2u / (1 + u^2), 1 - cos t = 2u^2 / (1 + u^2) (no
+            # cancellation) and cot(t/2) = 1/u; numpy vectorizes tan, not
+            # float64 sin and cos (see quat.sin_cos)
+            h = 0.5 * t
+            u = np.tan(h)
+            d = 1.0 + u * u
+            sin = 2.0 * u / d if "f2" in names or "sinc" in names else None
             for name in names:
                 if name == "f1":
-                    closed[name] = (1.0 - np.cos(t)) / tt
+                    closed[name] = 2.0 * (u * u) / d / tt
                 elif name == "f2":
                     closed[name] = (t - sin) / (tt * t)
                 elif name == "sinc":
                     closed[name] = sin / t
                 else:
-                    h = 0.5 * t
-                    closed[name] = (1.0 - h / np.tan(h)) / tt
+                    closed[name] = (1.0 - h / u) / tt
     out = []
     for name in names:
         if n_small == 0:
