@@ -227,6 +227,33 @@ def test_fit_jacobians_where_used_match_jacobians_everywhere(monkeypatch):
     _same(b2, b)
 
 
+@pytest.mark.parametrize("tail", [0, 200, 10**9])
+def test_tail_steps_with_their_jacobian_in_one_call_are_the_same_fit(monkeypatch, tail):
+    """On few samples a trial step's error and Jacobian come from one call
+    (``_TAIL_SAMPLES``): never, sometimes or always doing so gives the
+    same tangents and curve, and saves calls."""
+    q0, q3, seg, u, values, n = _fit_case(9, 120)
+    calls = []
+    call = splines._NormalEquations.__call__
+
+    def counted(self, rows, x, jacobian=True, curve=None):
+        calls.append(jacobian)
+        return call(self, rows, x, jacobian, curve)
+
+    monkeypatch.setattr(splines._NormalEquations, "__call__", counted)
+    ref = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
+    default_calls = len(calls)
+    calls.clear()
+    monkeypatch.setattr(splines, "_TAIL_SAMPLES", tail)
+    got = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
+    for x, y in zip(got, ref, strict=True):
+        _same(x, y)
+    if tail == 0:
+        assert len(calls) > default_calls  # the default merged some
+    if tail == 10**9:
+        assert len(calls) <= default_calls
+
+
 @pytest.mark.parametrize("n", [3, 2047, 2048, 3000])
 def test_qmul_conj_is_the_product_with_the_negated_copy(n):
     rng = np.random.default_rng(n)
