@@ -385,9 +385,9 @@ def _coefficients(x: np.ndarray, *names: str) -> tuple[np.ndarray, ...]:
     """The functions ``names`` (of ``f1``, ``f2``, ``sinc``, ``g``) of one
     argument ``x`` (n,) >= 0: closed forms, or their Taylor series below
     ``_SERIES``.  What they share (the masked argument, its square, the
-    tangent of its half) is computed once; where no argument (or every one) is small, the masks
-    and the unused branch are skipped: the same numbers as each function
-    on its own."""
+    tangent of its half) is computed once; where no argument (or every one)
+    is small, the masks and the unused branch are skipped: the same numbers
+    as each function on its own."""
     x2 = x * x
     small = x < _SERIES
     n_small = int(np.count_nonzero(small))
