@@ -37,15 +37,9 @@ def sin_cos(x: np.ndarray, out: tuple[np.ndarray, np.ndarray] | None = None) -> 
     ``x = 0`` gives exactly ``(0, 1)``.
     """
     t = np.tan(0.5 * np.asarray(x, dtype=float))
+    s, c = (np.empty_like(t), np.empty_like(t)) if out is None else out
     t2 = t * t
     d = 1.0 + t2
-    if out is None:
-        s = t * 2.0
-        s /= d
-        c = 1.0 - t2
-        c /= d
-        return s, c
-    s, c = out
     np.multiply(t, 2.0, out=s)
     s /= d
     np.subtract(1.0, t2, out=c)
