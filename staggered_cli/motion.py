@@ -294,6 +294,42 @@ def position_columns(skeleton: Skeleton) -> list[tuple[int, list[int]]]:
     return out
 
 
+#: Joints of one Euler order: (order, joints, their columns joint by joint).
+EulerGroup = tuple[str, list[int], list[int]]
+
+
+def euler_groups(skeleton: Skeleton, joints=None) -> tuple[list[EulerGroup], list[tuple[int, list[int], str]]]:
+    """The joints with three rotation channels grouped by Euler order:
+    (order, joints, their columns joint by joint), in order of first
+    appearance; and the joints with one or two rotation channels, as
+    :func:`rotation_columns` gives them.  ``joints``: only these."""
+    wanted = None if joints is None else {int(j) for j in joints}
+    groups: dict[str, tuple[list[int], list[int]]] = {}
+    partial = []
+    for j, cols, order in rotation_columns(skeleton):
+        if wanted is not None and j not in wanted:
+            continue
+        if len(order) == 3:
+            js, cs = groups.setdefault(order, ([], []))
+            js.append(j)
+            cs.extend(cols)
+        else:
+            partial.append((j, cols, order))
+    return [(order, js, cs) for order, (js, cs) in groups.items()], partial
+
+
+def _group_step(n_joints: int) -> int:
+    """Frames converted at once for a group of ``n_joints`` joints: about
+    :data:`_EULER_BLOCK` angles of each axis (the temporaries stay in cache;
+    one joint at a time, a short clip pays numpy's call overhead per joint)."""
+    return max(1, _EULER_BLOCK // max(n_joints, 1))
+
+
+#: Joint-frames converted at once between Euler angles and quaternions: every
+#: value is its own, so the same bits as one joint at a time.
+_EULER_BLOCK = 8192
+
+
 def local_rotations_from_channels(
     skeleton: Skeleton, channels: np.ndarray, unroll: bool = True, joints: np.ndarray | None = None
 ) -> np.ndarray:
@@ -302,27 +338,29 @@ def local_rotations_from_channels(
     sign-blind uses, which may then take any block of frames).  ``joints``:
     only these (the others are the identity).
 
-    Made a block of frames at a time, all joints of a block while its
-    channels are in cache (a joint's column of a long clip's channels,
-    read alone, cost 50x the time for 32x the frames), and unrolled in
-    place along the frames, all joints at once, a block of frames at a time
-    (each joint's signs are its own: those of unrolling its track alone)."""
+    The joints of one Euler order are converted together, a block of frames
+    at a time (:func:`_group_step`) while their channels are in cache (a
+    joint's column of a long clip's channels, read alone, cost 50x the time
+    for 32x the frames), and unrolled in place along the frames, all joints
+    at once, a block of frames at a time (each joint's signs are its own:
+    those of unrolling its track alone)."""
     T = channels.shape[0]
     J = skeleton.n_joints
     rot = quat.identity((T, J))
-    wanted = None if joints is None else {int(j) for j in joints}
-    columns = [(j, cols, order) for j, cols, order in rotation_columns(skeleton) if wanted is None or j in wanted]
+    groups, partial = euler_groups(skeleton, joints)
+    for order, js, cs in groups:
+        step = _group_step(len(js))
+        for lo in range(0, T, step):
+            block = channels[lo : lo + step, cs]
+            rot[lo : lo + step, js] = quat.from_euler(block.reshape(len(block), len(js), 3), order)
     step = max(1, _ROTATION_BLOCK // max(4 * J, 1))
     for lo in range(0, T, step):
         block = rot[lo : lo + step]
-        for j, cols, order in columns:
-            if len(order) == 3:
-                block[:, j] = quat.from_euler(channels[lo : lo + step, cols], order)
-            else:  # one or two rotation channels: compose what is there
-                q = quat.identity((len(block),))
-                for col, axis in zip(cols, order, strict=True):
-                    q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[lo : lo + step, col])))
-                block[:, j] = q
+        for j, cols, order in partial:  # one or two rotation channels: compose what is there
+            q = quat.identity((len(block),))
+            for col, axis in zip(cols, order, strict=True):
+                q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[lo : lo + step, col])))
+            block[:, j] = q
     if unroll:
         quat.unroll_in_place(rot)
     return rot
@@ -354,10 +392,16 @@ def channels_from_local(
     triples the one closest to ``reference`` (T, C) is chosen (SPEC section 2).
     """
     out = np.array(reference, dtype=float, copy=True)
-    for j, cols, order in rotation_columns(skeleton):
-        if len(order) == 3:
-            out[:, cols] = quat.to_euler(rotations[:, j], order, reference[:, cols])
-        elif len(order) == 2:
+    groups, partial = euler_groups(skeleton)
+    T = len(out)
+    for order, js, cs in groups:  # a joint's angles are its own: the same bits as one joint at a time
+        step = _group_step(len(js))
+        for lo in range(0, T, step):
+            ref = reference[lo : lo + step, cs]
+            ang = quat.to_euler(rotations[lo : lo + step, js], order, ref.reshape(len(ref), len(js), 3))
+            out[lo : lo + step, cs] = ang.reshape(len(ref), -1)
+    for j, cols, order in partial:
+        if len(order) == 2:
             out[:, cols] = _two_axis_angles(rotations[:, j], order, reference[:, cols])
         else:
             # one channel: the angle about that axis (exact for rotations

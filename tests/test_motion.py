@@ -289,3 +289,30 @@ def test_rotations_made_in_blocks_of_frames_are_those_of_whole_tracks(monkeypatc
     assert got.tobytes() == want.tobytes()
     raw = motion_module.local_rotations_from_channels(m.skeleton, ch, unroll=False)
     assert np.array_equal(np.abs(quat.dot(raw, got)), np.abs(quat.dot(got, got)))  # only signs differ
+
+
+@pytest.mark.parametrize("block", [1, 40, 1 << 13])
+def test_joints_of_one_euler_order_converted_together_give_each_joints_bits(monkeypatch, block):
+    """The 3dsMax-friendly CMU file mixes ZYX and ZXY joints, the
+    few-channel leg has one- and two-channel joints: channels to rotations
+    and back, a group of joints and a block of frames at a time (a block of
+    one joint-frame to many frames), are bit for bit each joint alone."""
+    from staggered_cli import motion as motion_module
+
+    monkeypatch.setattr(motion_module, "_EULER_BLOCK", block)
+    mixed = dev_motion("cmu3dsmax_131_02_start_walk_stop.bvh")
+    groups = motion_module.euler_groups(mixed.skeleton)[0]
+    assert {len(js) for order, js, _ in groups} == {19, 12}  # the root is ZYX too
+    for m in (mixed, few_channel_motion(smooth_few_channel_motion())):
+        sk, ch = m.skeleton, np.asarray(m.channels)[:300]
+        rot = local_rotations_from_channels(sk, ch)
+        assert rot.tobytes() == _rotations_joint_by_joint(sk, ch).tobytes()
+        turned = ch + 360.0 * np.round(np.sin(np.arange(ch.size)).reshape(ch.shape))  # whole turns to undo
+        back = channels_from_local(sk, rot, local_translations_from_channels(sk, ch), turned)
+        want = turned.copy()
+        for j, cols, order in rotation_columns(sk):
+            if len(order) == 3:
+                want[:, cols] = quat.to_euler(rot[:, j], order, turned[:, cols])
+        assert back[:, [c for _, cols, o in rotation_columns(sk) if len(o) == 3 for c in cols]].tobytes() == (
+            want[:, [c for _, cols, o in rotation_columns(sk) if len(o) == 3 for c in cols]].tobytes()
+        )
