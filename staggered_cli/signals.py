@@ -477,20 +477,58 @@ def trail_measures(
     return kappa, arc, speed
 
 
-def _rotated(q: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """``quat.mul_vec(q[:, None], axes[None])`` (T, A, 3): ``axes`` (A, 3)
-    turned by each rotation of ``q`` (T, 4), a block of frames at a time
-    (the products of a long clip's whole track, out of cache, took 2.5x the
-    time per frame); each value is its own, so the same bits."""
+#: Trail coordinates :func:`_rotated_columns` makes at once (256 kB).
+_TRAIL_BLOCK = 1 << 15
+
+
+def _limb_trails(sk, targets, dense, jumps, height, span, rate, kappa, weights, speed) -> None:
+    """The limb trails of rotation variables ``dense`` (T, V, 4) driving
+    joints ``targets``: each variable's curvature into ``kappa[:, n]``, its
+    weight into ``weights[n]``, its speed added to ``speed`` (T,).
+
+    The trails of several variables are measured in one call, in groups of
+    about :data:`_TRAIL_GROUP` trail points (each trail's numbers are its
+    own: the same bits as one variable at a time, which a short clip paid
+    numpy's call overhead for 30 times over)."""
+    T = len(dense)
+    limbs = [limb_axes(sk, int(j), height) for j in targets]
+    width = [2 * len(lb) for lb in limbs]
+    n0 = 0
+    while n0 < len(limbs):
+        n1, size = n0 + 1, width[n0]
+        while n1 < len(limbs) and (size + width[n1]) * T <= _TRAIL_GROUP:
+            size += width[n1]
+            n1 += 1
+        axes = np.array([a for lb in limbs[n0:n1] for a in [a for a, _ in lb] + [_orthogonal(a) for a, _ in lb]])
+        owner = np.repeat(np.arange(n0, n1), width[n0:n1])
+        trail = _rotated_columns(dense, owner, axes)  # (T, A, 3)
+        k, arc, sp = trail_measures(trail, ~jumps[:, owner], span, rate)
+        c = 0
+        for n in range(n0, n1):
+            L = width[n] // 2
+            lengths = np.array([ln for _, ln in limbs[n]])
+            longer = np.where(arc[c : c + L] >= arc[c + L : c + 2 * L], np.arange(L), np.arange(L) + L) + c
+            weights[n] = float(np.dot(lengths, arc[longer]))
+            speed += sp[:, longer] @ lengths
+            kappa[:, n] = k[:, c : c + 2 * L].max(axis=1)
+            c += 2 * L
+        n0 = n1
+
+
+#: Trail points (frames x limb axes) measured at once by :func:`_limb_trails`.
+_TRAIL_GROUP = 1 << 13
+
+
+def _rotated_columns(q: np.ndarray, owner: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """``axes[a]`` (A, 3) turned by the rotations ``q[:, owner[a]]`` of
+    (T, V, 4): (T, A, 3), a block of frames at a time (the products of a long
+    clip's whole track, out of cache, took 2.5x the time per frame); each
+    value is its own, so the same bits."""
     out = np.empty((len(q), len(axes), 3))
     step = max(1, _TRAIL_BLOCK // max(3 * len(axes), 1))
     for lo in range(0, len(q), step):
-        out[lo : lo + step] = quat.mul_vec(q[lo : lo + step, None, :], axes[None])
+        out[lo : lo + step] = quat.mul_vec(q[lo : lo + step, owner], axes[None])
     return out
-
-
-#: Trail coordinates :func:`_rotated` makes at once (256 kB).
-_TRAIL_BLOCK = 1 << 15
 
 
 def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = None) -> LocalEvidence:
@@ -520,24 +558,16 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
         breaks, rot_jumps = rotation_steps(rot_vals)
         col = 0
         for kind, vnames, targets, dense in variables:
-            for n in range(len(vnames)):
-                if kind == ROTATION:
-                    limbs = limb_axes(sk, int(targets[n]), height)
-                    axes = np.array([a for a, _ in limbs] + [_orthogonal(a) for a, _ in limbs])  # (2L, 3)
-                    lengths = np.array([ln for _, ln in limbs])
-                    trail = _rotated(dense[:, n], axes)  # (T, 2L, 3)
-                    valid = np.repeat(~rot_jumps[:, n, None], len(axes), axis=1)
-                    k, arc, sp = trail_measures(trail, valid, span, rate)
-                    L = len(limbs)
-                    longer = np.where(arc[:L] >= arc[L:], np.arange(L), np.arange(L) + L)
-                    weights[col + n] = float(np.dot(lengths, arc[longer]))
-                    speed += sp[:, longer] @ lengths
-                else:
-                    trail = dense[:, n, None, :]
-                    jump = quat.norm(np.diff(trail, axis=0)) > JUMP_FIGURE_HEIGHTS * height
-                    k, arc, sp = trail_measures(trail, ~jump & ~breaks[:, None], span, rate, height)
-                    weights[col + n] = float(arc[0])
-                    speed += sp[:, 0]
+            if kind == ROTATION:
+                _limb_trails(sk, targets, dense, rot_jumps, height, span, rate, kappa[:, col:], weights[col:], speed)
+                col += len(vnames)
+                continue
+            for n in range(len(vnames)):  # a position's trail is the position itself
+                trail = dense[:, n, None, :]
+                jump = quat.norm(np.diff(trail, axis=0)) > JUMP_FIGURE_HEIGHTS * height
+                k, arc, sp = trail_measures(trail, ~jump & ~breaks[:, None], span, rate, height)
+                weights[col + n] = float(arc[0])
+                speed += sp[:, 0]
                 kappa[:, col + n] = k.max(axis=1)
             col += len(vnames)
     else:

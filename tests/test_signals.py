@@ -31,7 +31,28 @@ def test_trails_made_in_blocks_of_frames_are_the_whole_products(monkeypatch, blo
     from staggered_cli import quat, signals
 
     rng = np.random.default_rng(3)
-    q = quat.normalize(rng.normal(size=(257, 4)))
+    q = quat.normalize(rng.normal(size=(257, 3, 4)))
     axes = quat.normalize(rng.normal(size=(5, 4)))[:, 1:]
+    owner = np.array([2, 0, 0, 1, 2])
     monkeypatch.setattr(signals, "_TRAIL_BLOCK", block)
-    assert signals._rotated(q, axes).tobytes() == quat.mul_vec(q[:, None, :], axes[None]).tobytes()
+    want = quat.mul_vec(q[:, owner], axes[None])
+    assert signals._rotated_columns(q, owner, axes).tobytes() == want.tobytes()
+    for a, v in enumerate(owner):  # each column is its rotation's own product
+        assert want[:, a].tobytes() == quat.mul_vec(q[:, v, None, :], axes[None, a]).reshape(-1, 3).tobytes()
+
+
+@pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "bandai2_run_normal_001.bvh"])
+def test_limb_trails_measured_together_are_each_variables_own(monkeypatch, name):
+    """The local evidence with every variable's limb trails measured alone
+    (a group of one) and with all of them in one call: the same bits."""
+    from staggered_cli import signals
+
+    from .conftest import dev_motion
+
+    m = dev_motion(name)
+    monkeypatch.setattr(signals, "_TRAIL_GROUP", 1)
+    alone = signals.local_evidence(m)
+    monkeypatch.setattr(signals, "_TRAIL_GROUP", 1 << 30)
+    together = signals.local_evidence(m)
+    for field in ("p", "weights", "speed", "breaks"):
+        assert getattr(alone, field).tobytes() == getattr(together, field).tobytes(), field
