@@ -319,34 +319,27 @@ def knots_from_poses(
     """
     K, V = refine.shape
     names = names or tuple(f"variable {i}" for i in range(V))
-    ptr = [0]
-    ts, vs, ps, es = [], [], [], []
-    for i in range(V):
-        nz = refine[:, i] != 0.0
-        k_ed = np.flatnonzero(nz)
-        t = np.concatenate([pose_t + refine[:, i], pose_t[k_ed]])
-        v = np.concatenate([value[:, i], edit_value[k_ed, i]])
-        p = np.concatenate([np.arange(K), k_ed])
-        e = np.concatenate([np.zeros(K, dtype=bool), np.ones(len(k_ed), dtype=bool)])
-        order = np.argsort(t, kind="stable")
-        if np.any(np.diff(p[order]) < 0):
-            from .errors import KnotOrderError
-
-            k = int(p[order][np.flatnonzero(np.diff(p[order]) < 0)[0]])
-            raise KnotOrderError(f"the knots of {names[i]!r} around pose {k} would cross a neighbouring pose's knots")
-        ts.append(t[order])
-        vs.append(v[order])
-        ps.append(p[order])
-        es.append(e[order])
-        ptr.append(ptr[-1] + len(t))
     d = value.shape[-1]
-    return Knots(
-        np.array(ptr, dtype=int),
-        np.concatenate(ts) if ts else np.zeros(0),
-        np.concatenate(vs) if vs else np.zeros((0, d)),
-        np.concatenate(ps) if ps else np.zeros(0, dtype=int),
-        np.concatenate(es) if es else np.zeros(0, dtype=bool),
-    )
+    # every variable's knots at once: its extreme knots (pose order), then
+    # its editing knots (pose order), sorted by time within the variable,
+    # stably (np.lexsort is), as one variable at a time would
+    ext_t = (pose_t[:, None] + refine).T.ravel()  # variable-major
+    ed_var, ed_k = np.nonzero((refine != 0.0).T)  # variable-major, poses increasing
+    var = np.concatenate([np.repeat(np.arange(V), K), ed_var])
+    t = np.concatenate([ext_t, pose_t[ed_k]])
+    order = np.lexsort((t, var))
+    var, t = var[order], t[order]
+    p = np.concatenate([np.tile(np.arange(K), V), ed_k])[order]
+    e = np.concatenate([np.zeros(K * V, dtype=bool), np.ones(len(ed_k), dtype=bool)])[order]
+    v = np.concatenate([value.transpose(1, 0, 2).reshape(K * V, d), edit_value[ed_k, ed_var]])[order]
+    crossed = np.flatnonzero((np.diff(p) < 0) & (np.diff(var) == 0))
+    if len(crossed):
+        from .errors import KnotOrderError
+
+        i, k = int(var[crossed[0]]), int(p[crossed[0]])
+        raise KnotOrderError(f"the knots of {names[i]!r} around pose {k} would cross a neighbouring pose's knots")
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(var, minlength=V))]).astype(int)
+    return Knots(ptr, t, v, p, e)
 
 
 def build_track(
@@ -405,8 +398,16 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
     # first the number of samples each variable keeps, so that the outputs
     # are allocated once and filled group by group
     counts = np.zeros(V, dtype=int)
+    # each variable's samples located once where they are few (17 bytes a
+    # sample kept); a long clip's are located again, group by group
+    located: list = [None] * V
+    held = 0
     for i in range(V):
-        counts[i] = np.count_nonzero(_inside(knots.t[knots.of(i)], np.asarray(samples_t[i], dtype=float))[2])
+        where = _inside(knots.t[knots.of(i)], np.asarray(samples_t[i], dtype=float))
+        counts[i] = np.count_nonzero(where[2])
+        held += len(where[2])
+        if held <= _FIT_GROUP:
+            located[i] = where
     samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
     first = knots.seg_first
     n_seg = len(first)
@@ -419,8 +420,8 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
         gseg, us, vals = [], [], []
         for i in range(i0, i1):
             kt = knots.t[knots.of(i)]
-            t = np.asarray(samples_t[i], dtype=float)
-            seg, u, keep = _inside(kt, t)
+            seg, u, keep = located[i] or _inside(kt, np.asarray(samples_t[i], dtype=float))
+            located[i] = None
             seg, u = seg[keep], u[keep]
             gseg.append(seg + (seg_ptr[i] - g0))
             us.append(u)
@@ -509,15 +510,13 @@ def _inside(kt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     """Segment, normalized time and a mask of the times ``t`` that a fit
     between knots ``kt`` uses: strictly inside the knots' span and not at a
     knot (the knot itself is exact)."""
-    seg, u = _locate(kt, t)
-    return seg, u, ~_near_knot(kt, t) & (t > kt[0]) & (t < kt[-1])
-
-
-def _near_knot(kt: np.ndarray, t: np.ndarray) -> np.ndarray:
     if len(kt) < 2:
-        return np.ones(len(t), dtype=bool)
-    j = np.clip(np.searchsorted(kt, t), 1, len(kt) - 1)
-    return np.minimum(np.abs(t - kt[j - 1]), np.abs(t - kt[j])) <= _AT_KNOT
+        return np.zeros(len(t), dtype=int), np.zeros(len(t)), np.zeros(len(t), dtype=bool)
+    seg, u = _locate(kt, t)
+    # the knots nearest t are its segment's two (where t is a knot, the
+    # segment it starts)
+    near = np.minimum(np.abs(t - kt[seg]), np.abs(t - kt[seg + 1])) <= _AT_KNOT
+    return seg, u, ~near & (t > kt[0]) & (t < kt[-1])
 
 
 def _locate(kt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

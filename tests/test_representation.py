@@ -233,3 +233,60 @@ def test_unroll_in_blocks_matches_the_flips_of_the_whole():
     np.testing.assert_array_equal(quat.unroll(q, axis=0), want)
     np.testing.assert_array_equal(quat.unroll(np.moveaxis(q, 0, 1), axis=1), np.moveaxis(want, 0, 1))
     assert np.all(np.sum(quat.unroll(q)[1:] * quat.unroll(q)[:-1], axis=-1) >= 0.0)
+
+
+def _knots_one_variable_at_a_time(pose_t, refine, value, edit_value):
+    """The plain form of knots_from_poses: each variable's knots sorted on their own."""
+    K, V = refine.shape
+    ptr, ts, vs, ps, es = [0], [], [], [], []
+    for i in range(V):
+        k_ed = np.flatnonzero(refine[:, i] != 0.0)
+        t = np.concatenate([pose_t + refine[:, i], pose_t[k_ed]])
+        order = np.argsort(t, kind="stable")
+        ts.append(t[order])
+        vs.append(np.concatenate([value[:, i], edit_value[k_ed, i]])[order])
+        ps.append(np.concatenate([np.arange(K), k_ed])[order])
+        es.append(np.concatenate([np.zeros(K, dtype=bool), np.ones(len(k_ed), dtype=bool)])[order])
+        ptr.append(ptr[-1] + len(t))
+    return np.array(ptr), np.concatenate(ts), np.concatenate(vs), np.concatenate(ps), np.concatenate(es)
+
+
+def test_knots_of_all_variables_at_once_are_each_variables_own():
+    """Refinements of both signs, none, and an extreme knot on the next
+    pose's time (a tie the stable sort keeps in pose order): the same knots
+    as one variable at a time; crossing knots name the variable and pose."""
+    from staggered_cli.errors import KnotOrderError
+    from staggered_cli.representation import knots_from_poses
+
+    rng = np.random.default_rng(5)
+    K, V = 9, 6
+    pose_t = np.arange(K) * 0.5
+    refine = np.where(rng.random((K, V)) < 0.5, rng.uniform(-0.2, 0.2, (K, V)), 0.0)
+    refine[[0, -1]] = 0.0
+    refine[3, 2] = 0.5  # pose 3's extreme knot of variable 2 at pose 4's time
+    value, edit = rng.normal(size=(K, V, 4)), rng.normal(size=(K, V, 4))
+    got = knots_from_poses(pose_t, refine, value, edit)
+    for x, y in zip(
+        (got.ptr, got.t, got.v, got.pose, got.editing),
+        _knots_one_variable_at_a_time(pose_t, refine, value, edit),
+        strict=True,
+    ):
+        assert x.dtype.kind == y.dtype.kind and x.tobytes() == y.tobytes()
+    refine[4, 5] = -0.9  # pose 4's extreme knot of variable 5 before pose 3's
+    with pytest.raises(KnotOrderError, match="'variable 5' around pose 4"):
+        knots_from_poses(pose_t, refine, value, edit)
+
+
+def test_samples_inside_the_knots_are_those_off_every_knot():
+    """One search for both the segment and the nearest knots: a time on a
+    knot, within 1e-9 s of one, between, before and after the knots."""
+    from staggered_cli.representation import _AT_KNOT, _inside, _locate
+
+    kt = np.array([0.0, 0.25, 0.5, 1.0])
+    t = np.array([-0.1, 0.0, 0.5e-9, 0.1, 0.25 - 0.5e-9, 0.25, 0.25 + 2e-9, 0.7, 1.0 - 0.5e-9, 1.0, 1.2])
+    seg, u, keep = _inside(kt, t)
+    s2, u2 = _locate(kt, t)
+    assert seg.tobytes() == s2.tobytes() and u.tobytes() == u2.tobytes()
+    near = np.min(np.abs(t[:, None] - kt[None]), axis=1) <= _AT_KNOT
+    assert keep.tolist() == (~near & (t > 0.0) & (t < 1.0)).tolist()
+    assert keep.tolist() == [False, False, False, True, False, False, True, True, False, False, False]
