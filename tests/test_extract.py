@@ -448,3 +448,21 @@ def test_cli_defaults_are_the_library_defaults():
     assert defaults["min_contact"] == C.DEFAULT_MIN_CONTACT
     assert defaults["contact_tolerance"] == C.DEFAULT_TOLERANCE
     assert defaults["significance"] == ops.DEFAULT_SIGNIFICANCE
+
+
+def test_spaced_candidates_are_the_greedy_choice_strongest_first():
+    """Candidates taken strongest first when at least ``spacing`` from every
+    frame taken (ties on strength by frame): the plain greedy choice, on
+    enough candidates that checking every taken frame would be quadratic."""
+    from staggered_cli.ops.extract import _spaced
+
+    rng = np.random.default_rng(11)
+    strength = np.round(rng.random(20_000), 2)  # many ties
+    frames = rng.choice(20_000, size=5_000, replace=False).tolist()
+    forced = np.array([0, 7_000, 19_999])
+    taken = list(forced)
+    for f in sorted(frames, key=lambda f: (-strength[f], f)):
+        if min(abs(t - f) for t in taken) >= 9:
+            taken.append(f)
+    got = _spaced(frames, strength, forced, 9)
+    assert got.tolist() == sorted(taken)

@@ -45,6 +45,8 @@ Significance gate
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 
 from .. import contacts as contact_detection
@@ -159,11 +161,12 @@ def contact_clusters(boundaries: np.ndarray, reach: int, n_frames: int) -> list[
 
 def _spaced(frames: list[int], strength: np.ndarray, taken: np.ndarray, spacing: int) -> np.ndarray:
     """``taken`` plus the ``frames`` (strongest first) at least ``spacing`` from every frame taken."""
-    taken = np.unique(np.asarray(taken, dtype=int))
+    kept = np.unique(np.asarray(taken, dtype=int)).tolist()  # sorted: a frame's nearest are beside its place
     for f in sorted(frames, key=lambda f: (-strength[f], f)):
-        if np.min(np.abs(taken - f)) >= spacing:
-            taken = np.sort(np.append(taken, f))
-    return taken
+        i = bisect.bisect_left(kept, f)
+        if (i == len(kept) or kept[i] - f >= spacing) and (i == 0 or f - kept[i - 1] >= spacing):
+            kept.insert(i, f)
+    return np.array(kept, dtype=int)
 
 
 def pose_count(P: np.ndarray, clusters: list[np.ndarray], gate: np.ndarray, forced: np.ndarray, spacing: int) -> int:
