@@ -217,8 +217,8 @@ def test_fit_jacobians_where_used_match_jacobians_everywhere(monkeypatch):
     a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
     call = splines._NormalEquations.__call__
 
-    def always(self, rows, x, jacobian=True, curve=None):  # every evaluation with its Jacobian
-        cost, jtj, jtr = call(self, rows, x, True, curve)
+    def always(self, rows, x, jacobian=True, curve=None, **kw):  # every evaluation with its Jacobian
+        cost, jtj, jtr = call(self, rows, x, True, curve, **kw)
         return (cost, jtj, jtr) if jacobian else (cost, None, None)
 
     monkeypatch.setattr(splines._NormalEquations, "__call__", always)
@@ -236,9 +236,9 @@ def test_tail_steps_with_their_jacobian_in_one_call_are_the_same_fit(monkeypatch
     calls = []
     call = splines._NormalEquations.__call__
 
-    def counted(self, rows, x, jacobian=True, curve=None):
+    def counted(self, rows, x, jacobian=True, curve=None, **kw):
         calls.append(jacobian)
-        return call(self, rows, x, jacobian, curve)
+        return call(self, rows, x, jacobian, curve, **kw)
 
     monkeypatch.setattr(splines._NormalEquations, "__call__", counted)
     ref = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
@@ -252,6 +252,37 @@ def test_tail_steps_with_their_jacobian_in_one_call_are_the_same_fit(monkeypatch
         assert len(calls) > default_calls  # the default merged some
     if tail == 10**9:
         assert len(calls) <= default_calls
+
+
+@pytest.mark.parametrize("budget", [0, 256, 10**9])
+def test_next_steps_tried_in_one_call_are_the_same_fit(monkeypatch, budget):
+    """At the end of a fit the steps a segment would take after failures
+    are tried in the same call (``_TRIAL_SAMPLES``) and replayed: never,
+    at the end or from the first step on, the same tangents and curve, in
+    fewer calls.  Noisy samples make steps fail; 10 steps (as extract
+    takes) and 30 spend some segments' iterations."""
+    q0, q3, seg, u, values, n = _fit_case(9, 120)
+    rng = np.random.default_rng(4)
+    values = quat.normalize(values + rng.normal(scale=0.4, size=values.shape) * (seg % 5 == 0)[:, None])
+    call = splines._NormalEquations.__call__
+    calls = []
+
+    def counted(self, *args, **kw):
+        calls.append(1)
+        return call(self, *args, **kw)
+
+    monkeypatch.setattr(splines._NormalEquations, "__call__", counted)
+    for iterations in (10, 30):
+        monkeypatch.setattr(splines, "_TRIAL_SAMPLES", 0)
+        calls.clear()
+        ref = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations, return_curve=True)
+        plain = len(calls)
+        monkeypatch.setattr(splines, "_TRIAL_SAMPLES", budget)
+        calls.clear()
+        got = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations, return_curve=True)
+        for x, y in zip(got, ref, strict=True):
+            _same(x, y)
+        assert len(calls) < plain if budget else len(calls) == plain
 
 
 @pytest.mark.parametrize("n", [3, 2047, 2048, 3000])
