@@ -299,3 +299,17 @@ def test_spliced_tokens_equal_the_tokens_replaced_one_by_one(items, lead, trail)
         pieces[first + 2 * i] = tok.encode()
     got = bvh._spliced(data, a, b, starts[which], ends[which], " ".join(new).encode())
     assert got == b"".join(pieces)
+
+
+def test_number_format_counts_the_same_without_exponents():
+    """The sample's decimals and digits counted on tokens without an
+    exponent (every file seen) and with the general rule (which a token
+    '0e0', of no decimals or digits, switches on): the same format."""
+    from staggered_cli.io.bvh import _number_format
+
+    rng = np.random.default_rng(2)
+    tokens = ["1.5", "-0.000", "+3", "0", "-0", "00.1200", "12.", "-.5", "+.0", "0.0001230", "123.456789", "-98.76"]
+    for _ in range(300):
+        sample = list(rng.choice(tokens, size=int(rng.integers(1, 8))))
+        values = np.array([float(t) for t in sample])
+        assert _number_format(sample, values) == _number_format([*sample, "0e0"], values), sample

@@ -456,8 +456,12 @@ def _number_format(tokens: list[str], values: np.ndarray) -> str:
     """
     step = max(1, len(tokens) // 4000)
     sample = tokens[::step]
-    decimals = max((len(t) - t.index(".") - 1 if "." in t and "e" not in t.lower() else 0) for t in sample)
-    digits = max(len(t.lower().split("e")[0].lstrip("+-").replace(".", "").lstrip("0")) for t in sample)
+    if "e" in (text := " ".join(sample)) or "E" in text:
+        decimals = max((len(t) - t.index(".") - 1 if "." in t and "e" not in t.lower() else 0) for t in sample)
+        digits = max(len(t.lower().split("e")[0].lstrip("+-").replace(".", "").lstrip("0")) for t in sample)
+    else:  # no exponents (every file seen): the same counts in fewer string operations a token
+        decimals = max(map(len, [t.partition(".")[2] for t in sample]))
+        digits = max(map(len, [t.lstrip("+-").replace(".", "").lstrip("0") for t in sample]))
     if decimals <= 12 and _whole_scaled(values, 10.0**decimals):
         return f"%.{decimals}f"
     if digits <= 17 and all(
