@@ -865,7 +865,9 @@ class _NormalEquations:
         for s0, s1 in zip(cuts[:-1], cuts[1:], strict=True):
             lo, hi = offsets[s0], offsets[s1]
             sl = idx[lo:hi]
-            if hi > lo and sl[-1] - sl[0] == hi - lo - 1:  # consecutive samples (idx increases): a view
+            if not in_call_order and hi > lo and sl[-1] - sl[0] == hi - lo - 1:
+                # consecutive samples (rows increase, so idx does): a view;
+                # rows that repeat may span as many samples and not be them
                 sl = slice(int(sl[0]), int(sl[-1]) + 1)
             segs = rows[s0:s1]
             q0, q3 = self.q0[:, segs], self.q3[:, segs]

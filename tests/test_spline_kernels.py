@@ -285,6 +285,38 @@ def test_next_steps_tried_in_one_call_are_the_same_fit(monkeypatch, budget):
         assert len(calls) < plain if budget else len(calls) == plain
 
 
+def test_next_steps_tried_in_one_call_on_random_fits(monkeypatch):
+    """Random fits (1 to 40 segments of 0 to 11 samples, noise from 0.01 to
+    1.5 rad, samples at u = 0, a NaN, 0 to 14 steps, with and without the
+    curve): never, at the end and from the start, the same bits.  (Among the
+    segments between two still moving can be as many samples as the trial
+    steps: they once were taken for them.)"""
+    rng = np.random.default_rng(123)
+    for _ in range(150):
+        S = int(rng.integers(1, 40))
+        knots = quat.normalize(rng.normal(size=(S + 1, 4)) * [rng.uniform(0.5, 5), 1, 1, 1])
+        seg = np.repeat(np.arange(S), rng.integers(0, 12, size=S))
+        u = rng.random(seg.size)
+        if rng.random() < 0.2:
+            u[rng.random(seg.size) < 0.1] = 0.0
+        noise = quat.exp(rng.normal(size=(seg.size, 3)) * rng.uniform(0.01, 1.5))
+        values = quat.mul(quat.slerp(knots[seg], knots[seg + 1], u), noise)
+        if rng.random() < 0.1 and seg.size:
+            values[0] = np.nan
+        iterations, curve = int(rng.integers(0, 15)), bool(rng.random() < 0.7)
+        fits = []
+        for budget in (0, 256, 10**9):
+            monkeypatch.setattr(splines, "_TRIAL_SAMPLES", budget)
+            fits.append(
+                splines.fit_rotation_tangents(
+                    knots[:-1], knots[1:], seg, u, values, S, iterations=iterations, return_curve=curve
+                )
+            )
+        for got in fits[1:]:
+            for x, y in zip(got, fits[0], strict=True):
+                _same(x, y)
+
+
 @pytest.mark.parametrize("n", [3, 2047, 2048, 3000])
 def test_qmul_conj_is_the_product_with_the_negated_copy(n):
     rng = np.random.default_rng(n)
