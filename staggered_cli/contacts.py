@@ -103,28 +103,44 @@ def effector_positions(
     return tuple(labels[i] for i in idx), motion.points[:, idx], float(motion.figure_height())
 
 
-def up_direction(points: np.ndarray, height: float) -> np.ndarray:
+def up_direction(points: np.ndarray, height: float, columns: np.ndarray | None = None) -> np.ndarray:
     """Unit up vector (3,) of a figure given its points ``(T, n, 3)`` (NaN allowed).
 
     The world axis of largest median per-frame extent, signed toward the
-    figure's median position; see the module docstring.
+    figure's median position; see the module docstring.  ``columns``: only
+    these of the points (without a copy of them all: a joint's positions
+    are 24 bytes a frame).
     """
+    cols = slice(None) if columns is None else np.asarray(columns, dtype=int)
+    T = points.shape[0]
+    n = points.shape[1] if columns is None else len(cols)
+    ext = np.empty((T, 3))
+    step = max(1, _UP_BLOCK // max(n, 1))
     with np.errstate(invalid="ignore"):
-        ext = np.fmax.reduce(points, axis=1) - np.fmin.reduce(points, axis=1)  # (T, 3)
+        for lo in range(0, T, step):  # each frame's extent on its own: the same numbers as at once
+            p = points[lo : lo + step, cols]
+            ext[lo : lo + step] = np.fmax.reduce(p, axis=1) - np.fmin.reduce(p, axis=1)
     ok = np.all(np.isfinite(ext), axis=1)
     axis = int(np.argmax(np.median(ext[ok], axis=0))) if ok.any() else 1
-    coord = points[..., axis]
-    seen = coord[np.isfinite(coord)]
-    median = float(np.median(seen)) if len(seen) else 0.0
+    coord = points[:, cols, axis]  # with columns, a copy of them
+    finite = np.isfinite(coord)
+    # the median partitions what it is given in place: a copy of the seen
+    # coordinates, or the copy of the columns itself when all are seen (in
+    # its memory order: the median does not depend on it)
+    seen = coord.ravel(order="K") if columns is not None and finite.all() else coord[finite]
+    del finite
+    median = float(np.median(seen, overwrite_input=True)) if len(seen) else 0.0
+    del seen
     sign = 1.0
     if abs(median) > 0.05 * height:
         sign = float(np.sign(median))
-    elif coord.shape[0] > 1:
+    elif points.shape[0] > 1:
+        coord = points[:, cols, axis]  # (again: the median may have reordered it)
         # the floor is the end whose lowest points rest most
         lo = np.argmin(np.where(np.isfinite(coord), coord, np.inf), axis=1)
         hi = np.argmax(np.where(np.isfinite(coord), coord, -np.inf), axis=1)
         rows = np.arange(len(coord) - 1)
-        v = quat.norm(np.diff(points, axis=0))  # (T-1, n)
+        v = quat.norm(np.diff(points[:, cols], axis=0))  # (T-1, n)
         v_lo, v_hi = v[rows, lo[:-1]], v[rows, hi[:-1]]
         v_lo, v_hi = v_lo[np.isfinite(v_lo)], v_hi[np.isfinite(v_hi)]
         if len(v_lo) and len(v_hi) and np.median(v_hi) < np.median(v_lo):
@@ -134,18 +150,29 @@ def up_direction(points: np.ndarray, height: float) -> np.ndarray:
     return up
 
 
+#: Point positions :func:`up_direction` measures at once (its temporaries:
+#: a few MB whatever the clip's length).
+_UP_BLOCK = 1 << 16
+
+
 def _median_height(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Median height (n,) of each point over the frames it is seen in; inf
     for a point never seen."""
     h = points @ up  # (T, n)
     never = ~np.any(np.isfinite(h), axis=0)
-    return np.nanmedian(np.where(never[None], np.inf, h), axis=0)
+    if never.any():  # (h is this function's own)
+        h[:, never] = np.inf
+    return np.nanmedian(h, axis=0)
 
 
 def _lowest(points: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
     """Indices of the points whose median height is within LOWEST_SHARE of
     the figure height of the lowest one's."""
-    h = _median_height(points, up)
+    return _lowest_of(_median_height(points, up), height)
+
+
+def _lowest_of(h: np.ndarray, height: float) -> np.ndarray:
+    """:func:`_lowest` of the median heights ``h`` (n,)."""
     return np.flatnonzero(h <= np.min(h) + LOWEST_SHARE * height)
 
 
@@ -174,11 +201,13 @@ def contact_joints(
     all_names, pos, height = effector_positions(motion)
     if isinstance(motion, BvhMotion):
         body = body_joints(motion.skeleton)
-        up = up_direction(pos[:, body], height)
+        up = up_direction(pos, height, body)
         h = _median_height(pos, up)
         root_h = h[body[0]]
         by_name = {j for j, n in enumerate(all_names) if _FOOT_NAME.search(n) and h[j] < root_h}
-        lowest = {int(body[j]) for j in _lowest(pos[:, body], up, height)}
+        # the body's median heights are those of all joints (each column's
+        # own): not measured again on a copy of the body's positions
+        lowest = {int(body[j]) for j in _lowest_of(h[body], height)}
         chosen = [j for j in sorted(by_name | lowest) if _has_chain(motion.skeleton, j)]
     else:
         up = up_direction(pos, height)
@@ -267,10 +296,8 @@ def detect_contacts(
     if not names:
         return ()
     names, pos, height = effector_positions(motion, names)
-    all_pos = effector_positions(motion)[1]
-    if isinstance(motion, BvhMotion):
-        all_pos = all_pos[:, body_joints(motion.skeleton)]
-    up = up_direction(all_pos, height)
+    body = body_joints(motion.skeleton) if isinstance(motion, BvhMotion) else None
+    up = up_direction(effector_positions(motion)[1], height, body)
     with np.errstate(invalid="ignore"):
         h = pos @ up  # (T, n)
         floor = np.array([np.percentile(c[np.isfinite(c)], 5) if np.isfinite(c).any() else np.nan for c in h.T])

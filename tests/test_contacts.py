@@ -40,3 +40,27 @@ def test_detecting_again_on_a_retimed_document_keeps_its_time(cmu_walk):
     again = redetect(moved, None, None, None)
     key = lambda c: (c.joint, round(c.start, 6), round(c.end, 6))  # noqa: E731
     assert sorted(map(key, again)) == sorted(map(key, moved.constraints))
+
+
+def test_the_up_direction_of_some_columns_is_that_of_their_copy():
+    """``up_direction`` of the body's columns, measured without a copy of
+    them (its median on its own copy of one coordinate), is that of the
+    copied columns; the caller's points are left as they were."""
+    from staggered_cli.contacts import up_direction
+    from staggered_cli.skeleton import body_joints
+
+    from .conftest import dev_motion
+
+    for name in ("cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "games105_idle.bvh"):
+        m = dev_motion(name)
+        wp, h = m.world_positions(), m.figure_height()
+        body = body_joints(m.skeleton)
+        before = wp.tobytes()
+        assert up_direction(wp, h, body).tolist() == up_direction(np.array(wp[:, body]), h).tolist()
+        assert wp.tobytes() == before
+    rng = np.random.default_rng(5)  # gaps, and a figure centred on the floor (the other branch)
+    pts = rng.normal(size=(300, 6, 3))
+    pts[rng.random((300, 6)) < 0.2] = np.nan
+    cols = np.array([4, 0, 2])
+    for h in (0.1, 1000.0):
+        assert up_direction(pts, h, cols).tolist() == up_direction(pts[:, cols].copy(), h).tolist()
