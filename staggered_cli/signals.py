@@ -233,12 +233,25 @@ def laplacian_smooth(x: np.ndarray, duration: float, rate: float, breaks: np.nda
     cuts = np.zeros(T - 1, dtype=bool) if breaks is None else np.asarray(breaks, dtype=bool).reshape(T - 1)
     if full + (last > 0) > MAX_EXPLICIT_ITERATIONS:
         return _smooth_spectral(x, full, last, cuts)
-    cond = (~cuts).astype(float).reshape((T - 1,) + (1,) * (x.ndim - 1))
-    for lam in [_LAMBDA] * full + ([last] if last > 0 else []):
-        flux = cond * np.diff(x, axis=0)  # (T-1, ...)
-        x[:-1] += lam * flux
-        x[1:] -= lam * flux
+    steps = [_LAMBDA] * full + ([last] if last > 0 else [])
+    flat = x.reshape(T, -1)
+    cond = (~cuts).astype(float)[:, None]
+    # a few columns at a time where the signals are long (each column is its
+    # own: the same numbers), so that the temporaries stay a few MB
+    width = max(1, _SMOOTH_BLOCK // T)
+    for c0 in range(0, flat.shape[1], width):
+        xb = flat if width >= flat.shape[1] else np.ascontiguousarray(flat[:, c0 : c0 + width])
+        for lam in steps:
+            flux = cond * np.diff(xb, axis=0)  # (T-1, n)
+            xb[:-1] += lam * flux
+            xb[1:] -= lam * flux
+        if xb is not flat:
+            flat[:, c0 : c0 + width] = xb
     return x
+
+
+#: Values :func:`laplacian_smooth` iterates on at once (8 MB).
+_SMOOTH_BLOCK = 1 << 20
 
 
 def _smooth_spectral(x: np.ndarray, full: int, last: float, cuts: np.ndarray) -> np.ndarray:
@@ -459,6 +472,13 @@ def trail_measures(
         valid edge covers a frame).
     """
     T, n = trail.shape[:2]
+    if n > 2 and T * n > _MEASURE_BLOCK:
+        # a few trails at a time (each trail is its own), at least two, so
+        # that the sums over frames add in the order of the whole (a single
+        # column would be summed pairwise): temporaries of a few MB
+        width = max(2, _MEASURE_BLOCK // T)
+        parts = [trail_measures(trail[:, c], valid[:, c], span, rate, scale) for c in _column_starts(n, width)]
+        return tuple(np.concatenate(m, axis=-1 if m[0].ndim > 1 else 0) for m in zip(*parts, strict=True))
     kappa = scaled_curvature(trail, valid, scale, span)
     if T <= span:
         return kappa, np.zeros(n), np.zeros((T, n))
@@ -475,6 +495,22 @@ def trail_measures(
     acc, cnt = np.cumsum(acc, axis=0)[:T], np.cumsum(cnt, axis=0)[:T]
     speed = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0) * rate / span
     return kappa, arc, speed
+
+
+#: Trail points :func:`trail_measures` measures at once: a long clip's
+#: trails a few at a time, their temporaries (ten arrays of three
+#: coordinates a point) about 25 MB.
+_MEASURE_BLOCK = 1 << 17
+
+
+def _column_starts(n: int, width: int) -> list[slice]:
+    """Slices of ``width`` of ``n`` columns, none of one column alone (the
+    last takes it)."""
+    starts = list(range(0, n, width))
+    if len(starts) > 1 and n - starts[-1] < 2:
+        starts.pop()
+    ends = starts[1:] + [n]
+    return [slice(a, b) for a, b in zip(starts, ends, strict=True)]
 
 
 #: Trail coordinates :func:`_rotated_columns` makes at once (256 kB).

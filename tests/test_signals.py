@@ -56,3 +56,33 @@ def test_limb_trails_measured_together_are_each_variables_own(monkeypatch, name)
     together = signals.local_evidence(m)
     for field in ("p", "weights", "speed", "breaks"):
         assert getattr(alone, field).tobytes() == getattr(together, field).tobytes(), field
+
+
+@pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh"])
+def test_long_clips_measured_a_few_trails_and_columns_at_a_time_keep_every_bit(monkeypatch, name):
+    """A long clip's trails are measured a few at a time (never one alone,
+    whose sums over frames would add pairwise) and its curvature smoothed a
+    few columns at a time: with blocks forced down to a frame's worth, the
+    local evidence of a real clip is the same bits."""
+    from staggered_cli import signals
+
+    from .conftest import dev_motion
+
+    m = dev_motion(name)
+    monkeypatch.setattr(signals, "_TRAIL_GROUP", 1)  # one variable's trails a call, as a long clip's
+    whole = signals.local_evidence(m)
+    monkeypatch.setattr(signals, "_MEASURE_BLOCK", 1)
+    monkeypatch.setattr(signals, "_SMOOTH_BLOCK", 1)
+    parts = signals.local_evidence(m)
+    for field in ("p", "weights", "speed", "breaks"):
+        assert getattr(parts, field).tobytes() == getattr(whole, field).tobytes(), field
+
+
+def test_column_blocks_never_leave_a_column_alone():
+    from staggered_cli.signals import _column_starts
+
+    for n in range(2, 12):
+        for width in range(2, 6):
+            parts = _column_starts(n, width)
+            assert [i for s in parts for i in range(n)[s]] == list(range(n))
+            assert min(s.stop - s.start for s in parts) >= 2
