@@ -11,6 +11,7 @@ leaks past them.  Control variables (SPEC section 2) are derived here:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -115,16 +116,18 @@ class BvhMotion:
     def _world_positions(self) -> tuple[np.ndarray, float]:
         """World positions (T, J, 3) and the figure height, by forward
         kinematics over blocks of frames (each frame is its own: the same
-        numbers as all at once), so that world rotations never exist for
-        the whole clip."""
+        numbers as all at once), so that world rotations and local
+        translations never exist for the whole clip."""
         sk, T = self.skeleton, self.n_frames
-        rot, tr = self._local_rotations, self.local_translations()
+        rot = self._local_rotations
         wp = np.empty((T, sk.n_joints, 3))
         extents = np.empty(T)
         step = max(1, _FK_BLOCK // max(sk.n_joints, 1))
         for lo in range(0, T, step):
             hi = min(lo + step, T)
-            wr_b, wp_b = forward_kinematics(sk, rot[lo:hi], tr[lo:hi])
+            # the block's translations only: the clip's would be as large as wp
+            tr = local_translations_from_channels(sk, self.channels[lo:hi])
+            wr_b, wp_b = forward_kinematics(sk, rot[lo:hi], tr)
             wp[lo:hi] = wp_b
             extents[lo:hi] = figure_extents(sk, wp_b, end_site_positions(sk, wr_b, wp_b))
         return _frozen(wp), height_of_extents(sk, extents)
@@ -133,15 +136,28 @@ class BvhMotion:
         """(T, J, 4) local rotations, w first, each joint's track unrolled (read-only)."""
         return self._local_rotations
 
+    def local_rotation_columns(self, joints: np.ndarray) -> Sequence[np.ndarray]:
+        """The local rotations (T, 4) of each of ``joints``, as
+        :meth:`local_rotations` has them (the same numbers): from its cache
+        where it is made, else each joint's made when it is asked for (and
+        not kept), so that a long clip's rotations never all exist at once."""
+        cached = self.__dict__.get("_local_rotations")
+        if cached is not None:
+            return [cached[:, int(j)] for j in joints]
+        return _RotationColumns(self.skeleton, self.channels, tuple(int(j) for j in joints))
+
     def release_local(self) -> None:
         """Forget the cached local rotations (:meth:`local_rotations` computes
         them again if asked): 32 bytes per joint and frame, that bake frees
         once it has compared them with the baked pose."""
         self.__dict__.pop("_local_rotations", None)
 
-    def local_translations(self) -> np.ndarray:
-        """(T, J, 3) local translations: position channels where present, else offsets (read-only)."""
-        return _frozen(local_translations_from_channels(self.skeleton, self.channels))
+    def local_translations(self, joints: np.ndarray | None = None) -> np.ndarray:
+        """(T, J, 3) local translations: position channels where present, else
+        offsets (read-only; made anew at each call).  ``joints``: only these
+        (T, len(joints), 3): a clip's translation variables are a joint or
+        two, and all joints' are 24 bytes per joint and frame."""
+        return _frozen(local_translations_from_channels(self.skeleton, self.channels, joints))
 
     def world(self) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (T, J, 4) and positions (T, J, 3) (read-only; the
@@ -330,13 +346,35 @@ def _group_step(n_joints: int) -> int:
 _EULER_BLOCK = 8192
 
 
+class _RotationColumns(Sequence):
+    """Each joint's unrolled local rotations (T, 4), made when asked for."""
+
+    def __init__(self, skeleton: Skeleton, channels: np.ndarray, joints: tuple[int, ...]):
+        self._skeleton, self._channels, self._joints = skeleton, channels, joints
+
+    def __len__(self) -> int:
+        return len(self._joints)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        j = self._joints[i]
+        rot = local_rotations_from_channels(self._skeleton, self._channels, joints=[j], compact=True)
+        return _frozen(rot[:, 0])
+
+
 def local_rotations_from_channels(
-    skeleton: Skeleton, channels: np.ndarray, unroll: bool = True, joints: np.ndarray | None = None
+    skeleton: Skeleton,
+    channels: np.ndarray,
+    unroll: bool = True,
+    joints: np.ndarray | None = None,
+    compact: bool = False,
 ) -> np.ndarray:
     """Local rotations (T, J, 4) of channel values (T, C), w first; each
     joint's track unrolled (without ``unroll``, each frame's own sign: for
     sign-blind uses, which may then take any block of frames).  ``joints``:
-    only these (the others are the identity).
+    only these (the others are the identity; with ``compact``, only these
+    are returned, (T, len(joints), 4) in their order).
 
     The joints of one Euler order are converted together, a block of frames
     at a time (:func:`_group_step`) while their channels are in cache (a
@@ -345,14 +383,20 @@ def local_rotations_from_channels(
     at once, a block of frames at a time (each joint's signs are its own:
     those of unrolling its track alone)."""
     T = channels.shape[0]
-    J = skeleton.n_joints
+    if compact and joints is not None:
+        at = {int(j): n for n, j in enumerate(joints)}  # a joint's place in the result
+        J = len(at)
+    else:
+        at = None
+        J = skeleton.n_joints
     rot = quat.identity((T, J))
     groups, partial = euler_groups(skeleton, joints)
     for order, js, cs in groups:
         step = _group_step(len(js))
+        where = js if at is None else [at[j] for j in js]
         for lo in range(0, T, step):
             block = channels[lo : lo + step, cs]
-            rot[lo : lo + step, js] = quat.from_euler(block.reshape(len(block), len(js), 3), order)
+            rot[lo : lo + step, where] = quat.from_euler(block.reshape(len(block), len(js), 3), order)
     step = max(1, _ROTATION_BLOCK // max(4 * J, 1))
     for lo in range(0, T, step):
         block = rot[lo : lo + step]
@@ -360,7 +404,7 @@ def local_rotations_from_channels(
             q = quat.identity((len(block),))
             for col, axis in zip(cols, order, strict=True):
                 q = quat.mul(q, quat.from_axis_angle(axis, np.radians(channels[lo : lo + step, col])))
-            block[:, j] = q
+            block[:, j if at is None else at[j]] = q
     if unroll:
         quat.unroll_in_place(rot)
     return rot
@@ -370,13 +414,22 @@ def local_rotations_from_channels(
 _ROTATION_BLOCK = 1 << 18
 
 
-def local_translations_from_channels(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+def local_translations_from_channels(
+    skeleton: Skeleton, channels: np.ndarray, joints: np.ndarray | None = None
+) -> np.ndarray:
+    """Local translations (T, J, 3) of channel values (T, C): the position
+    channels where a joint has them, else its offset.  ``joints``: only
+    these, in this order (T, len(joints), 3)."""
     T = channels.shape[0]
-    tr = np.broadcast_to(skeleton.offsets, (T, skeleton.n_joints, 3)).copy()
+    js = np.arange(skeleton.n_joints) if joints is None else np.asarray(joints, dtype=int)
+    tr = np.broadcast_to(skeleton.offsets[js], (T, len(js), 3)).copy()
+    where = {int(j): n for n, j in enumerate(js)}
     for j, cols in position_columns(skeleton):
+        if j not in where:
+            continue
         for axis, col in enumerate(cols):
             if col >= 0:
-                tr[:, j, axis] = channels[:, col]
+                tr[:, where[j], axis] = channels[:, col]
     return tr
 
 

@@ -362,12 +362,45 @@ def build_track(
     """
     K, V = refine.shape
     extreme_t = pose_t[:, None] + refine
+    if not isinstance(dense, np.ndarray):
+        # a sequence of V (T, D) columns, each made when asked for: every
+        # variable's knot values are sampled when the fit takes its column
+        # (the same numbers as from all of them at once)
+        d = _DIM[kind]
+        knots = knots_from_poses(pose_t, refine, np.zeros((K, V, d)), np.zeros((K, V, d)), names)
+        check_knot_order(knots.ptr, knots.t, names)
+        columns = _SampledColumns(kind, frame_t, dense, pose_t, extreme_t, knots)
+        layer = fit_layer(kind, knots, [frame_t] * V, columns)
+        return Track(kind, tuple(names), np.asarray(targets, dtype=int), (layer,))
     value = sample_dense(kind, frame_t, dense, extreme_t)
     edit_value = sample_dense(kind, frame_t, dense, pose_t)
     knots = knots_from_poses(pose_t, refine, value, edit_value, names)
     check_knot_order(knots.ptr, knots.t, names)
     layer = fit_layer(kind, knots, [frame_t] * V, [dense[:, i] for i in range(V)])
     return Track(kind, tuple(names), np.asarray(targets, dtype=int), (layer,))
+
+
+class _SampledColumns:
+    """The columns of :func:`build_track`'s ``dense`` as :func:`fit_layer`
+    takes them, one by one: taking variable ``i``'s fills its knot values
+    (``knots.v``, which the fit reads only after) from it."""
+
+    def __init__(self, kind, frame_t, columns, pose_t, extreme_t, knots: Knots):
+        self.kind, self.frame_t, self.columns = kind, frame_t, columns
+        self.pose_t, self.extreme_t, self.knots = pose_t, extreme_t, knots
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        col = np.asarray(self.columns[i])
+        kn = self.knots
+        rows = kn.of(i)
+        value = sample_dense(self.kind, self.frame_t, col[:, None], self.extreme_t[:, i : i + 1])[:, 0]
+        edit = sample_dense(self.kind, self.frame_t, col[:, None], self.pose_t)[:, 0]
+        p = kn.pose[rows]
+        kn.v[rows] = np.where(kn.editing[rows][:, None], edit[p], value[p])
+        return col
 
 
 def fit_track(

@@ -15,16 +15,46 @@ import numpy as np
 from .document import Constraint, Document, seconds, variable_layout
 from .errors import UsageError
 from .motion import BvhMotion, MarkerMotion
-from .representation import ROTATION, TRANSLATION, build_track
+from .representation import ROTATION, build_track
 
 
-def dense_variables(motion: BvhMotion | MarkerMotion) -> list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]]:
-    """The control variables of a clip as (kind, names, targets, dense values (T, V, D))."""
+def dense_variables(
+    motion: BvhMotion | MarkerMotion, by_column: bool = False
+) -> list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]]:
+    """The control variables of a clip as (kind, names, targets, dense values (T, V, D)).
+
+    With ``by_column`` (BVH), the rotations are instead a sequence of each
+    variable's (T, 4), made when it is asked for unless the clip's are
+    cached (:meth:`BvhMotion.local_rotation_columns`).
+    """
     layout = variable_layout(motion)
     if isinstance(motion, BvhMotion):
-        dense = {ROTATION: motion.local_rotations(), TRANSLATION: motion.local_translations()}  # cached per clip
-        return [(kind, names, targets, _columns(dense[kind], targets)) for kind, names, targets in layout]
+        # the rotations are cached per clip; the translations are made for
+        # the joints that have position channels only (all joints' would be
+        # a transient copy of 24 bytes per joint and frame)
+        out = []
+        for kind, names, targets in layout:
+            if kind != ROTATION:
+                out.append((kind, names, targets, motion.local_translations(targets)))
+            elif by_column:
+                out.append((kind, names, targets, motion.local_rotation_columns(targets)))
+            else:
+                out.append((kind, names, targets, _columns(motion.local_rotations(), targets)))
+        return out
     return [(*layout[0], fill_gaps(motion.points))]
+
+
+#: Bytes of a clip's local rotations (32 a joint and frame) above which
+#: :func:`from_motion` fits them a joint at a time, each made as the fit
+#: takes it, rather than all at once: an hour at 120 Hz (428 MB) then never
+#: holds them all during its fit, for the cost of making them once more.
+BY_COLUMN_BYTES = 1 << 28
+
+
+def fits_by_column(motion: BvhMotion | MarkerMotion) -> bool:
+    """Whether :func:`from_motion` fits the clip's rotations a joint at a
+    time when they are not cached (see :data:`BY_COLUMN_BYTES`)."""
+    return isinstance(motion, BvhMotion) and 32 * motion.n_frames * motion.skeleton.n_joints > BY_COLUMN_BYTES
 
 
 def _columns(values: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -89,7 +119,7 @@ def from_motion(
     end = frame_t[-1]
     if np.any(pose_t < -1e-9) or np.any(pose_t > end + 1e-9):
         raise UsageError(f"pose times must lie within the clip (0 to {seconds(end, ft)})")
-    variables = dense_variables(motion)
+    variables = dense_variables(motion, by_column=fits_by_column(motion))
     V = sum(len(names) for _, names, _, _ in variables)
     if refine is None:
         refine = np.zeros((len(pose_t), V))

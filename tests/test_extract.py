@@ -466,3 +466,21 @@ def test_spaced_candidates_are_the_greedy_choice_strongest_first():
             taken.append(f)
     got = _spaced(frames, strength, forced, 9)
     assert got.tolist() == sorted(taken)
+
+
+@pytest.mark.parametrize("name", ["cmu3dsmax_131_02_start_walk_stop.bvh", "cmu_02_01_walk.bvh"])
+def test_a_long_clips_fit_a_joint_at_a_time_gives_the_same_document(monkeypatch, name):
+    """Past BY_COLUMN_BYTES of rotations (an hour at 120 Hz), extract drops
+    the clip's rotations before the fit and the fit makes each joint's as it
+    takes it: forced on a dev clip, the same document bytes."""
+    from staggered_cli import variables
+
+    want = document_bytes(*to_parts(_extracted(name)), "npz")
+    from staggered_cli.io.bvh import read_bvh
+
+    monkeypatch.setattr(variables, "BY_COLUMN_BYTES", 0)
+    m = read_bvh(mocap(name))
+    assert variables.fits_by_column(m)
+    got = extract(m, source_name=name)
+    assert "_local_rotations" not in m.__dict__
+    assert document_bytes(*to_parts(got), "npz") == want

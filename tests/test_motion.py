@@ -316,3 +316,41 @@ def test_joints_of_one_euler_order_converted_together_give_each_joints_bits(monk
         assert back[:, [c for _, cols, o in rotation_columns(sk) if len(o) == 3 for c in cols]].tobytes() == (
             want[:, [c for _, cols, o in rotation_columns(sk) if len(o) == 3 for c in cols]].tobytes()
         )
+
+
+@pytest.mark.parametrize("name", ["cmu3dsmax_131_02_start_walk_stop.bvh", "bandai1_walk_normal_001.bvh"])
+def test_rotation_columns_made_a_joint_at_a_time_are_the_clips_bits(name):
+    """A long clip's fit takes its rotations a joint at a time, each made
+    alone when asked (mixed Euler orders, unrolled): each is the column of
+    the whole clip's, bit for bit, and so are the few-channel joints'."""
+    for m in (dev_motion(name), few_channel_motion(smooth_few_channel_motion())):
+        m = BvhMotion(m.skeleton, np.asarray(m.channels), m.frame_time)  # nothing cached
+        joints = np.arange(m.skeleton.n_joints)[::-1]
+        lazy = m.local_rotation_columns(joints)
+        assert "_local_rotations" not in m.__dict__
+        whole = local_rotations_from_channels(m.skeleton, m.channels)
+        assert len(lazy) == len(joints)
+        for n, j in enumerate(joints):
+            assert lazy[n].tobytes() == whole[:, j].tobytes(), m.skeleton.names[j]
+        assert "_local_rotations" not in m.__dict__  # made for the asking, not kept
+        cached = m.local_rotations()
+        assert all(c.base is cached or c.base is cached.base for c in m.local_rotation_columns(joints[:3]))
+
+
+def test_translations_of_some_joints_are_those_columns_and_world_positions_hold(monkeypatch):
+    """Translations are made for the joints asked (a clip's translation
+    variables are a joint or two), and forward kinematics makes each block
+    of frames' own: the same bits as the whole clip's at once."""
+    from staggered_cli import motion as motion_module
+    from staggered_cli.skeleton import forward_kinematics
+
+    m = dev_motion("cmu_02_01_walk.bvh")
+    sk = m.skeleton
+    whole = local_translations_from_channels(sk, m.channels)
+    joints = np.array([0, 5, 2])
+    assert m.local_translations(joints).tobytes() == whole[:, joints].tobytes()
+    assert m.local_translations().tobytes() == whole.tobytes()
+    _, wp = forward_kinematics(sk, local_rotations_from_channels(sk, m.channels), whole)
+    monkeypatch.setattr(motion_module, "_FK_BLOCK", 7 * sk.n_joints)  # blocks of 7 frames
+    fresh = BvhMotion(sk, np.asarray(m.channels), m.frame_time)
+    assert fresh.world_positions().tobytes() == wp.tobytes()

@@ -54,7 +54,7 @@ from .. import ik, placement, signals
 from ..document import Document
 from ..errors import DataError, UsageError
 from ..motion import BvhMotion, MarkerMotion, rate_problem
-from ..variables import dense_variables, from_motion
+from ..variables import dense_variables, fits_by_column, from_motion
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -539,6 +539,8 @@ def extract(
         "contact_pulse": signals.DEFAULT_PULSE,
     }
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
+    if fits_by_column(motion):  # a long clip's fit makes its rotations a joint at a time
+        motion.release_local()
     doc = from_motion(
         motion,
         pose_t,
