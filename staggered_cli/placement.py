@@ -23,6 +23,7 @@ All times here are in frames (floats: a knot need not sit on a frame).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
@@ -59,6 +60,14 @@ class Proxy:
     @property
     def n_frames(self) -> int:
         return self.x.shape[0]
+
+    @cached_property
+    def by_channel(self) -> np.ndarray:
+        """The values channel first, (C, T * V) (made once: segment costs
+        read them so, and a long clip's copy, the size of ``x``, made at
+        every call was most of their time)."""
+        T, V, C = self.x.shape
+        return np.ascontiguousarray(self.x.reshape(T * V, C).T)
 
 
 def variable_weights(motion: BvhMotion | MarkerMotion, variables) -> np.ndarray:
@@ -202,8 +211,8 @@ def segment_costs(proxy: Proxy, var: np.ndarray, a: np.ndarray, b: np.ndarray) -
         return out
     first = np.floor(a + 1e-9) + 1.0
     count = np.maximum(np.ceil(b - 1e-9) - first, 0.0).astype(int)  # frames strictly inside
-    T, V, C = proxy.x.shape
-    xc = np.ascontiguousarray(proxy.x.reshape(T * V, C).T)
+    C = proxy.x.shape[2]
+    xc = proxy.by_channel
     # batches whose (C, SAMPLES, n) arrays stay in cache: each segment's cost
     # is computed alone, so the batch size does not change a bit of it
     step = max(1, _COST_BATCH // (SAMPLES * C))

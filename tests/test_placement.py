@@ -85,6 +85,27 @@ def test_segment_costs_are_the_plain_formula_to_the_bit(monkeypatch):
     np.testing.assert_array_equal(placement.segment_costs(proxy, var, a, b), want)
 
 
+def test_segment_costs_read_the_proxy_channel_first_made_once(monkeypatch):
+    """Every call on a proxy reads the one channel-first copy of its values
+    (a long clip's, made at each call, was most of the calls' time)."""
+    rng = np.random.default_rng(4)
+    T, V = 300, 5
+    proxy = placement.Proxy(rng.normal(size=(T, V, 4)).astype(np.float32), np.ones(V), np.arange(V))
+    made = []
+    contiguous = np.ascontiguousarray
+
+    def counted(a, *args, **kwargs):
+        made.append(np.shape(a))
+        return contiguous(a, *args, **kwargs)
+
+    monkeypatch.setattr(placement.np, "ascontiguousarray", counted)
+    var, a, b = _segments(rng, T, V, 500)
+    first = placement.segment_costs(proxy, var, a, b)
+    np.testing.assert_array_equal(placement.segment_costs(proxy, var, a, b), first)
+    assert made.count((T * V, 4)[::-1]) == 1
+    assert proxy.by_channel.tobytes() == proxy.x.reshape(T * V, 4).T.copy().tobytes()
+
+
 def test_segment_costs_of_a_document_are_the_plain_formula_to_the_bit():
     """On the proxy cull ranks cmu_02_01's poses with (rotations unrolled, weights from the skeleton)."""
     doc = dev_document("cmu_02_01_walk.bvh")
