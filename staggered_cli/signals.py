@@ -472,13 +472,21 @@ def trail_measures(
         valid edge covers a frame).
     """
     T, n = trail.shape[:2]
-    if n > 2 and T * n > _MEASURE_BLOCK:
-        # a few trails at a time (each trail is its own), at least two, so
-        # that the sums over frames add in the order of the whole (a single
-        # column would be summed pairwise): temporaries of a few MB
-        width = max(2, _MEASURE_BLOCK // T)
-        parts = [trail_measures(trail[:, c], valid[:, c], span, rate, scale) for c in _column_starts(n, width)]
-        return tuple(np.concatenate(m, axis=-1 if m[0].ndim > 1 else 0) for m in zip(*parts, strict=True))
+    width = max(2, _MEASURE_BLOCK // max(T, 1))
+    if n <= width:
+        return _trail_measures(trail, valid, span, rate, scale)
+    # a few trails at a time (each trail is its own), at least two, so that
+    # the sums over frames add in the order of the whole (a single column
+    # would be summed pairwise): temporaries of a few MB
+    parts = [_trail_measures(trail[:, c], valid[:, c], span, rate, scale) for c in _column_starts(n, width)]
+    return tuple(np.concatenate(m, axis=-1 if m[0].ndim > 1 else 0) for m in zip(*parts, strict=True))
+
+
+def _trail_measures(
+    trail: np.ndarray, valid: np.ndarray, span: int, rate: float, scale: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`trail_measures` of trails measured together."""
+    T, n = trail.shape[:2]
     kappa = scaled_curvature(trail, valid, scale, span)
     if T <= span:
         return kappa, np.zeros(n), np.zeros((T, n))

@@ -58,12 +58,16 @@ def test_limb_trails_measured_together_are_each_variables_own(monkeypatch, name)
         assert getattr(alone, field).tobytes() == getattr(together, field).tobytes(), field
 
 
-@pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh"])
-def test_long_clips_measured_a_few_trails_and_columns_at_a_time_keep_every_bit(monkeypatch, name):
+@pytest.mark.parametrize(
+    "name", ["cmu_02_01_walk.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh", "c3dorg_sample01_Eb015pi_walk.c3d"]
+)
+@pytest.mark.parametrize("width", [2, 3, 5])
+def test_long_clips_measured_a_few_trails_and_columns_at_a_time_keep_every_bit(monkeypatch, name, width):
     """A long clip's trails are measured a few at a time (never one alone,
-    whose sums over frames would add pairwise) and its curvature smoothed a
-    few columns at a time: with blocks forced down to a frame's worth, the
-    local evidence of a real clip is the same bits."""
+    whose sums over frames would add pairwise; a width that leaves one over
+    gives it to the last block) and its curvature smoothed a few columns at
+    a time: with blocks forced down to a few frames' worth, the local
+    evidence of a real clip is the same bits."""
     from staggered_cli import signals
 
     from .conftest import dev_motion
@@ -71,8 +75,8 @@ def test_long_clips_measured_a_few_trails_and_columns_at_a_time_keep_every_bit(m
     m = dev_motion(name)
     monkeypatch.setattr(signals, "_TRAIL_GROUP", 1)  # one variable's trails a call, as a long clip's
     whole = signals.local_evidence(m)
-    monkeypatch.setattr(signals, "_MEASURE_BLOCK", 1)
-    monkeypatch.setattr(signals, "_SMOOTH_BLOCK", 1)
+    monkeypatch.setattr(signals, "_MEASURE_BLOCK", width * m.n_frames)
+    monkeypatch.setattr(signals, "_SMOOTH_BLOCK", width * m.n_frames)
     parts = signals.local_evidence(m)
     for field in ("p", "weights", "speed", "breaks"):
         assert getattr(parts, field).tobytes() == getattr(whole, field).tobytes(), field
