@@ -356,27 +356,28 @@ def build_track(
     Parameters
     ----------
     frame_t : (T,) source frame times, seconds.
-    dense : (T, V, D) motion values (rotations unrolled per variable).
+    dense : (T, V, D) motion values (rotations unrolled per variable), or a
+        sequence of the V variables' (T, D), each taken once, in order (a
+        long clip's rotations, made a joint at a time).
     pose_t : (K,) strictly increasing pose times within the clip.
     refine : (K, V) refinements in seconds (0 on the first and last pose).
     """
     K, V = refine.shape
     extreme_t = pose_t[:, None] + refine
-    if not isinstance(dense, np.ndarray):
+    if isinstance(dense, np.ndarray):
+        value = sample_dense(kind, frame_t, dense, extreme_t)
+        edit_value = sample_dense(kind, frame_t, dense, pose_t)
+        knots = knots_from_poses(pose_t, refine, value, edit_value, names)
+        columns = [dense[:, i] for i in range(V)]
+    else:
         # a sequence of V (T, D) columns, each made when asked for: every
         # variable's knot values are sampled when the fit takes its column
         # (the same numbers as from all of them at once)
         d = _DIM[kind]
         knots = knots_from_poses(pose_t, refine, np.zeros((K, V, d)), np.zeros((K, V, d)), names)
-        check_knot_order(knots.ptr, knots.t, names)
         columns = _SampledColumns(kind, frame_t, dense, pose_t, extreme_t, knots)
-        layer = fit_layer(kind, knots, [frame_t] * V, columns)
-        return Track(kind, tuple(names), np.asarray(targets, dtype=int), (layer,))
-    value = sample_dense(kind, frame_t, dense, extreme_t)
-    edit_value = sample_dense(kind, frame_t, dense, pose_t)
-    knots = knots_from_poses(pose_t, refine, value, edit_value, names)
     check_knot_order(knots.ptr, knots.t, names)
-    layer = fit_layer(kind, knots, [frame_t] * V, [dense[:, i] for i in range(V)])
+    layer = fit_layer(kind, knots, [frame_t] * V, columns)
     return Track(kind, tuple(names), np.asarray(targets, dtype=int), (layer,))
 
 

@@ -474,10 +474,9 @@ def test_a_long_clips_fit_a_joint_at_a_time_gives_the_same_document(monkeypatch,
     the clip's rotations before the fit and the fit makes each joint's as it
     takes it: forced on a dev clip, the same document bytes."""
     from staggered_cli import variables
-
-    want = document_bytes(*to_parts(_extracted(name)), "npz")
     from staggered_cli.io.bvh import read_bvh
 
+    want = document_bytes(*to_parts(_extracted(name)), "npz")
     monkeypatch.setattr(variables, "BY_COLUMN_BYTES", 0)
     m = read_bvh(mocap(name))
     assert variables.fits_by_column(m)
