@@ -367,13 +367,19 @@ def contact_refinements(
     out = np.zeros((K, V), dtype=int)
     best = np.full((K, V), np.iinfo(int).max)
     chains: dict[str, np.ndarray] = {}
-    for joint, f in events:
-        k = int(np.clip(np.searchsorted(pose_f, f), 1, K - 1))
-        if k > 0 and abs(pose_f[k - 1] - f) < abs(pose_f[k] - f):
-            k -= 1
-        if not _in_window(pose_f, np.array([k]), np.array([f]), window)[0]:
+    if not events or K < 2:
+        return out, best < np.iinfo(int).max
+    # each event's pose, and whether it lies in that pose's window, for all at once
+    f_all = np.array([f for _, f in events])
+    k_all = np.clip(np.searchsorted(pose_f, f_all), 1, K - 1)
+    k_all -= np.abs(pose_f[k_all - 1] - f_all) < np.abs(pose_f[k_all] - f_all)
+    inside = _in_window(pose_f, k_all, f_all, window)
+    for (joint, f), k, ok in zip(events, k_all.tolist(), inside.tolist(), strict=True):
+        if not ok:
             continue
-        cols = chains.setdefault(joint, chain_variables(motion, names, joint))
+        cols = chains.get(joint)
+        if cols is None:  # (setdefault would find the chain again at every event)
+            cols = chains[joint] = chain_variables(motion, names, joint)
         d = f - int(pose_f[k])
         nearer = abs(d) < best[k, cols]
         out[k, cols[nearer]] = d
