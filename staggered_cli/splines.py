@@ -355,8 +355,12 @@ def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     angle = 2.0 * np.arctan2(s, w)
     small = s < 1e-8
-    if small.any():
-        scale = np.where(small, 2.0 / np.maximum(w, 1e-12), angle / np.where(small, 1.0, s))
+    if small.any():  # the few small ones fixed afterwards: the same numbers as np.where
+        idx = np.flatnonzero(small)
+        safe = s.copy()
+        safe[idx] = 1.0
+        scale = angle / safe
+        scale[idx] = 2.0 / np.maximum(w[idx], 1e-12)
     else:  # the same numbers without the masks
         scale = angle / s
     scale *= sign
@@ -369,8 +373,13 @@ def _qexp_t(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
     out = np.empty((4, *v.shape[1:]))
     sin = np.empty(angle.shape)
     quat.sin_cos(0.5 * angle, out=(sin, out[0]))
-    if small.any():
-        k = np.where(small, 0.5 - angle * angle / 48.0, sin / np.where(small, 1.0, angle))
+    if small.any():  # the few small ones fixed afterwards: the same numbers as np.where
+        idx = np.flatnonzero(small)
+        safe = angle.copy()
+        safe[idx] = 1.0
+        k = np.divide(sin, safe, out=sin)
+        tiny = angle[idx]
+        k[idx] = 0.5 - tiny * tiny / 48.0
     else:  # the same numbers without the masks
         k = sin
         k /= angle
