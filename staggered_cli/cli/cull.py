@@ -25,7 +25,7 @@ from .options import force_option, format_option, input_argument, output_option
     type=click.Choice(["error", "paper"]),
     default="error",
     show_default=True,
-    help="How --keep ranks poses: the spline-layer error their removal adds (greedy), or the paper's priority.",
+    help="How --keep ranks poses: the N whose spline layer fits the motion best (error), or the paper's priority.",
 )
 @click.option(
     "--ignore-contacts",
