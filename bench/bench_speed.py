@@ -180,26 +180,36 @@ def cull_25(doc):
 def child_steps(doc_path: str, repeats: int) -> dict:
     """CPU seconds, the best of ``repeats``, of the in-process succession
     down the left arm and ``cull --keep 25%`` on the document ``doc_path``,
-    each run on the document read afresh (reading is not timed)."""
+    each run on the document read afresh (reading is not timed), and the
+    in-process floor (frames per CPU second of loadtxt + savetxt of
+    cmu_01_01), each repeat measuring the three one after the other: the
+    machine's speed moves within seconds, so a floor measured at another
+    moment would scale the steps by that."""
     import logging
 
     from staggered_cli.cli.common import read_document
+    from staggered_cli.heap import reuse_freed_memory
     from staggered_cli.ops import timing
 
+    reuse_freed_memory()  # as the commands do
     logging.disable(logging.WARNING)  # the succession's warning about steep warps
     steps = {
         "succession": lambda d: timing.succession(d, 0.03, 1.5, joint="@left-arm", clamp=True),
         "cull": cull_25,
     }
-    out = {}
-    for name, step in steps.items():
-        best = float("inf")
+    out = dict.fromkeys(steps, float("inf"))
+    floor = float("inf")
+    with tempfile.TemporaryDirectory() as tmp:
         for _ in range(repeats):
-            doc = read_document(doc_path)
             cpu = time.process_time()
-            step(doc)
-            best = min(best, time.process_time() - cpu)
-        out[name] = best
+            frames = _floor_once(Path(tmp))
+            floor = min(floor, time.process_time() - cpu)
+            for name, step in steps.items():
+                doc = read_document(doc_path)
+                cpu = time.process_time()
+                step(doc)
+                out[name] = min(out[name], time.process_time() - cpu)
+    out["floor_rate"] = frames / floor
     return out
 
 
@@ -308,10 +318,11 @@ def steps(tmp: Path, repeats: int) -> list[bool]:
     if proc.returncode != 0:
         raise SystemExit(f"in-process steps failed: {proc.stderr.strip()[-400:]}")
     cpu = json.loads(proc.stdout.strip().splitlines()[-1])
-    # as every other goal, against the floor of this run: the goals were set
-    # in seconds on a machine whose floor ran FLOOR_RATE_THEN; a time here
-    # times this floor over that one is what it comes to there
-    scale = _floor_rate(tmp, repeats) / FLOOR_RATE_THEN
+    # as every other goal, against the floor of this run (measured between
+    # the steps' runs): the goals were set in seconds on a machine whose floor
+    # ran FLOOR_RATE_THEN; a time here times this floor over that one is what
+    # it comes to there
+    scale = cpu["floor_rate"] / FLOOR_RATE_THEN
     print(f"  in-process floor {scale:.2f}x the one the goals were set on: times x {scale:.2f} below")
     out = []
     for name, label, goal in (
@@ -332,18 +343,24 @@ def steps(tmp: Path, repeats: int) -> list[bool]:
 
 def _floor_rate(tmp: Path, repeats: int) -> float:
     """Frames per second of loadtxt + savetxt of cmu_01_01 in this process."""
+    best = float("inf")
+    for _ in range(repeats + 2):
+        t = time.perf_counter()
+        frames = _floor_once(tmp)
+        best = min(best, time.perf_counter() - t)
+    return frames / best
+
+
+def _floor_once(tmp: Path) -> int:
+    """loadtxt + savetxt of cmu_01_01's MOTION block (into ``tmp``); returns its frames."""
     import io
 
     import numpy as np
 
-    best = float("inf")
-    for _ in range(repeats + 2):
-        t = time.perf_counter()
-        text = (MOCAP / CLIP).read_text()
-        a = np.loadtxt(io.StringIO(text.partition("Frame Time:")[2].split("\n", 1)[1]), ndmin=2)
-        np.savetxt(tmp / "floor.txt", a, fmt="%.6f")
-        best = min(best, time.perf_counter() - t)
-    return len(a) / best
+    text = (MOCAP / CLIP).read_text()
+    a = np.loadtxt(io.StringIO(text.partition("Frame Time:")[2].split("\n", 1)[1]), ndmin=2)
+    np.savetxt(tmp / "floor.txt", a, fmt="%.6f")
+    return len(a)
 
 
 def library(tmp: Path, copies: int, repeats: int) -> list[bool]:
