@@ -25,7 +25,7 @@ they return new ones.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -109,6 +109,22 @@ class Knots:
 
 
 @dataclass(frozen=True)
+class _Fitted:
+    """The spline ``values`` (NS, D) of a layer at its samples, and the arrays
+    of the layer they were computed from (the same objects: a layer made
+    from it by ``replace`` with other knots, tangents or samples does not
+    hold them, so its spline is evaluated; a layer's arrays are never
+    changed in place)."""
+
+    knots: Knots
+    tan_a: np.ndarray
+    tan_b: np.ndarray
+    samp_ptr: np.ndarray
+    samp_s: np.ndarray
+    values: np.ndarray
+
+
+@dataclass(frozen=True)
 class Layer:
     """One layer of a track: a spline over its knots and a displacement map.
 
@@ -121,6 +137,9 @@ class Layer:
     samp_ptr : (V+1,) int, CSR offsets into the sample arrays.
     samp_s : (NS,) knot coordinates (segment + u) of displacement samples.
     samp_d : (NS, D) displacement values (vectors, or unit quaternions).
+    fitted : the spline at the samples as the fit computed it, for an
+        evaluation in the same process (see :func:`_fitted_spline`); in
+        memory only, never written, and not part of the layer's value.
     """
 
     knots: Knots
@@ -129,6 +148,7 @@ class Layer:
     samp_ptr: np.ndarray
     samp_s: np.ndarray
     samp_d: np.ndarray
+    fitted: _Fitted | None = field(default=None, compare=False, repr=False)
 
     def samples(self, i: int) -> slice:
         return slice(int(self.samp_ptr[i]), int(self.samp_ptr[i + 1]))
@@ -449,6 +469,9 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
     b = np.zeros((n_seg, 3))
     s_a = np.zeros(int(samp_ptr[-1]))
     disp = np.zeros((int(samp_ptr[-1]), d))
+    # the spline at the samples, kept for a bake in this process where it is small
+    keep_spline = disp.nbytes <= _FITTED_BYTES
+    spline = np.zeros_like(disp) if keep_spline else None
     for i0, i1 in _variable_groups(counts, _FIT_GROUP):
         g0, g1 = int(seg_ptr[i0]), int(seg_ptr[i1])
         gseg, us, vals = [], [], []
@@ -466,7 +489,8 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
         v_a = np.concatenate(vals) if vals else np.zeros((0, d))
         del gseg, us, vals
         fs = first[g0:g1]
-        ga, gb, gdisp = _fit_segments(kind, knots.v[fs], knots.v[fs + 1], gseg_a, u_a, v_a, g1 - g0)
+        out = None if spline is None else spline[samp_ptr[i0] : samp_ptr[i1]]
+        ga, gb, gdisp = _fit_segments(kind, knots.v[fs], knots.v[fs + 1], gseg_a, u_a, v_a, g1 - g0, out)
         a[g0:g1], b[g0:g1] = ga, gb
         disp[samp_ptr[i0] : samp_ptr[i1]] = gdisp
         del gseg_a, u_a, v_a, ga, gb, gdisp
@@ -477,8 +501,16 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
         np.asarray(knots.pose, dtype=int),
         np.asarray(knots.editing, dtype=bool),
     )
-    return Layer(knots, a, b, samp_ptr, s_a, disp)
+    fitted = None
+    if spline is not None:
+        spline.flags.writeable = False
+        fitted = _Fitted(knots, a, b, samp_ptr, s_a, spline)
+    return Layer(knots, a, b, samp_ptr, s_a, disp, fitted)
 
+
+#: The largest spline at the samples a fitted layer keeps (:class:`_Fitted`):
+#: a clip of a few minutes; a longer one's bake evaluates it again.
+_FITTED_BYTES = 1 << 26
 
 #: Samples fitted in one batched call by :func:`fit_layer` (whole variables:
 #: a group holds at least one): its temporaries are a few hundred bytes a
@@ -501,13 +533,16 @@ def _variable_groups(counts: np.ndarray, most: int) -> list[tuple[int, int]]:
     return out
 
 
-def _fit_segments(kind, p0, p3, gseg, u, values, n_seg):
+def _fit_segments(kind, p0, p3, gseg, u, values, n_seg, spline_out=None):
     """Tangents (n_seg, 3) x 2 of segments with endpoints ``p0``, ``p3`` fitted
     to samples ``values`` at (``gseg``, ``u``), and the displacements
-    ``values ⊖ spline`` there."""
+    ``values ⊖ spline`` there (the spline itself into ``spline_out``, if given)."""
     if kind == TRANSLATION:
         a, b = splines.fit_translation_tangents(p0, p3, gseg, u, values, n_seg)
-        return a, b, values - splines.bezier_eval_at(p0, a, b, p3, gseg, u)
+        s_val = splines.bezier_eval_at(p0, a, b, p3, gseg, u)
+        if spline_out is not None:
+            spline_out[...] = s_val
+        return a, b, values - s_val
     values = quat.normalize(values)
     pick = _evenly_within_segments(gseg, FIT_SAMPLES)
     a, b, at, fitted = splines.fit_rotation_tangents(
@@ -523,6 +558,8 @@ def _fit_segments(kind, p0, p3, gseg, u, values, n_seg):
     rest = np.flatnonzero(rest)
     if rest.size:
         s_val[rest] = splines.rotation_eval_at(p0, a, b, p3, gseg[rest], u[rest])
+    if spline_out is not None:
+        spline_out[...] = s_val
     return a, b, quat.hemisphere(quat.mul(quat.conj(s_val), values), quat.identity((1,)))
 
 
@@ -685,26 +722,59 @@ def layer_at(
     # long clip's segments, and all of them at every block would make a
     # bake quadratic in the clip's length.  Each segment's numbers are its
     # own, so they are the same bits as with every segment.
-    used, at = splines.compact_segments(gseg)
-    # the first knot of segment g of variable i is g + i (seg_ptr = ptr - i)
-    first = used + (np.searchsorted(seg_ptr, used, side="right") - 1)
     ops = kinds.ops_for(kind)
-    val = ops.spline_at(knots.v[first], layer.tan_a[used], layer.tan_b[used], knots.v[first + 1], at, u)
+    fitted = _fitted_spline(layer) if detail and layer.has_detail else None
+    if fitted is None:
+        val = _spline_at(ops, layer, gseg, u)
+    else:
+        # at a sample the spline is the fit's (the same numbers); elsewhere
+        # (at the knots, between frames) it is evaluated
+        disp, hit_q, hit_sample = _displacement_at(kind, layer, s, order, bounds, hits=True)
+        val = np.empty((N, ops.dim))
+        val[hit_q] = fitted[hit_sample]
+        miss = np.ones(N, dtype=bool)
+        miss[hit_q] = False
+        miss = np.flatnonzero(miss)
+        if miss.size:
+            val[miss] = _spline_at(ops, layer, gseg[miss], u[miss])
     single = np.diff(knots.ptr)[var] < 2
     if np.any(single):
         val[single] = knots.v[knots.ptr[var[single]]]
     if not detail or not layer.has_detail:
         return val
-    return ops.oplus(val, _displacement_at(kind, layer, s, order, bounds))
+    return ops.oplus(val, disp if fitted is not None else _displacement_at(kind, layer, s, order, bounds))
 
 
-def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+def _spline_at(ops, layer: Layer, gseg: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The layer's spline on its segments ``gseg`` at times ``u`` (N, D)."""
+    seg_ptr, v = layer.knots.seg_ptr, layer.knots.v
+    used, at = splines.compact_segments(gseg)
+    # the first knot of segment g of variable i is g + i (seg_ptr = ptr - i)
+    first = used + (np.searchsorted(seg_ptr, used, side="right") - 1)
+    return ops.spline_at(v[first], layer.tan_a[used], layer.tan_b[used], v[first + 1], at, u)
+
+
+def _fitted_spline(layer: Layer) -> np.ndarray | None:
+    """The spline at ``layer``'s samples as its fit computed it (NS, D), or
+    None: when the layer was not fitted in this process, or was made from a
+    fitted one with other knots, tangents or sample coordinates."""
+    f = layer.fitted
+    if f is None:
+        return None
+    mine = (f.knots, f.tan_a, f.tan_b, f.samp_ptr, f.samp_s)
+    theirs = (layer.knots, layer.tan_a, layer.tan_b, layer.samp_ptr, layer.samp_s)
+    return f.values if all(x is y for x, y in zip(mine, theirs, strict=True)) else None
+
+
+def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, bounds: np.ndarray, hits: bool = False):
     """Displacement (N, D) at knot coordinates ``s``, identity at integers.
 
     Each variable's samples are sorted by knot coordinate (the fit makes
     them so and reading checks it); the identity at the knots is not stored
     but met where the nearest sample lies in another segment, so nothing
-    is copied.
+    is copied.  With ``hits``, also the queries that lie on a sample (at its
+    very knot coordinate, in its segment) and those samples: (out, queries,
+    samples).
     """
     ops = kinds.ops_for(kind)
     N = len(s)
@@ -742,6 +812,10 @@ def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, 
         left = has & below & (xb > j)  # a sample of this segment at or before s
         right = has & (k < stop) & (xa < j + 1.0)  # a sample of this segment after s
         del k, first, stop, below, has  # (a query's temporaries go as soon as they are used)
+        if hits:
+            on = left & (xb == si)
+            hit_q, hit_sample = q[on], kb[on]
+            del on
         x_lo = np.where(left, xb, j)  # the knots around each query, identity there
         x_hi = np.where(right, xa, j + 1.0)
         del xb, xa
@@ -756,6 +830,7 @@ def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, 
         x_lo, x_hi = j, j + 1.0
         lo_g = np.broadcast_to(ident, (len(q), D)).copy()
         hi_g = lo_g.copy()
+        hit_q = hit_sample = np.zeros(0, dtype=np.intp)
     # computed in the queries' grouped order, then put in place
     w_g = np.clip((si - x_lo) / (x_hi - x_lo), 0.0, 1.0)
     del si, j, x_lo, x_hi
@@ -766,7 +841,7 @@ def _displacement_at(kind: str, layer: Layer, s: np.ndarray, order: np.ndarray, 
     else:  # queries of no variable: the identity
         out = np.broadcast_to(ident, (N, D)).copy()
     out[q] = out_g
-    return out
+    return (out, hit_q, hit_sample) if hits else out
 
 
 # --- structure ----------------------------------------------------------------
@@ -852,10 +927,14 @@ def restructure(
     bound = int(old.samp_ptr[-1]) + int(np.sum(size))
     out_s = np.empty(bound)
     out_d = np.empty((bound, D))
+    # the fit's spline at the samples, where the old layer has it: carried
+    # with the kept segments' samples, computed at the refitted ones
+    old_fit = _fitted_spline(old)
+    out_f = np.empty((bound, D)) if old_fit is not None and bound * D * 8 <= _FITTED_BYTES else None
     counts = np.zeros(V, dtype=int)
     w = 0
 
-    def emit(i0: int, i1: int, g_var, g_seg, g_s, g_d) -> None:
+    def emit(i0: int, i1: int, g_var, g_seg, g_s, g_d, g_f) -> None:
         # the old samples of variables i0..i1-1 whose segment is kept, and
         # the fresh ones, in order of (new) segment: each segment's samples
         # are already in order, and all carried or all fresh, so ordering by
@@ -875,6 +954,8 @@ def restructure(
         n = len(o)
         out_s[w : w + n] = np.concatenate([carried_s, g_s])[o]
         out_d[w : w + n] = np.concatenate([old.samp_d[o0:o1][carry], g_d])[o]
+        if out_f is not None:
+            out_f[w : w + n] = np.concatenate([old_fit[o0:o1][carry], g_f])[o]
         counts[i0:i1] = np.bincount(np.concatenate([owner[carry], g_var]) - i0, minlength=i1 - i0)
         w += n
 
@@ -883,7 +964,7 @@ def restructure(
 
     def emit_carried(i0: int, i1: int) -> None:
         for c0, c1 in _variable_groups(old_counts[i0:i1], _FIT_GROUP):
-            emit(i0 + c0, i0 + c1, none_i, none_i, none_f, none_d)
+            emit(i0 + c0, i0 + c1, none_i, none_i, none_f, none_d, none_d)
 
     done = 0  # variables emitted so far
     groups = _variable_groups(size, _FIT_GROUP)
@@ -929,21 +1010,29 @@ def restructure(
         r0 = int(np.searchsorted(refit, knots.seg_ptr[todo[j0]]))
         r1 = int(np.searchsorted(refit, knots.seg_ptr[todo[j1 - 1] + 1]))
         fs = new_first[refit[r0:r1]]
-        ga, gb, gd = _fit_segments(track.kind, knots.v[fs], knots.v[fs + 1], local[g_seg] - r0, g_u, values, r1 - r0)
+        gf = None if out_f is None else np.empty((len(g_u), D))
+        ga, gb, gd = _fit_segments(
+            track.kind, knots.v[fs], knots.v[fs + 1], local[g_seg] - r0, g_u, values, r1 - r0, gf
+        )
         del values
         a_new[r0:r1], b_new[r0:r1] = ga, gb
         i0, i1 = int(todo[j0]), int(todo[j1 - 1]) + 1
         emit_carried(done, i0)
-        emit(i0, i1, g_var, g_seg, (g_seg - knots.seg_ptr[g_var]) + g_u, gd)
+        emit(i0, i1, g_var, g_seg, (g_seg - knots.seg_ptr[g_var]) + g_u, gd, gf)
         done = i1
-        del g_var, g_seg, g_u, ga, gb, gd
+        del g_var, g_seg, g_u, ga, gb, gd, gf
     emit_carried(done, V)
     tan_a = np.zeros((len(new_first), 3))
     tan_b = np.zeros((len(new_first), 3))
     tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
     tan_a[refit], tan_b[refit] = a_new, b_new
     samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
-    layer = Layer(knots, tan_a, tan_b, samp_ptr, out_s[:w], out_d[:w])
+    samp_s = out_s[:w]
+    fitted = None
+    if out_f is not None:
+        out_f.flags.writeable = False
+        fitted = _Fitted(knots, tan_a, tan_b, samp_ptr, samp_s, out_f[:w])
+    layer = Layer(knots, tan_a, tan_b, samp_ptr, samp_s, out_d[:w], fitted)
     return track.with_base(layer)
 
 
