@@ -183,12 +183,42 @@ def centroid_moved(a: np.ndarray, b: np.ndarray) -> float:
 def test_c3d_exaggerate_changes_the_shape_not_the_place(name, relative_to, bound):
     m, doc, plain = c3d_doc(name)
     size = m.figure_height()
-    for k in (3, doc.n_poses // 2, doc.n_poses - 4):
+    seen = np.all(np.isfinite(m.points), axis=2)
+    frame = np.rint(doc.pose_t / doc.frame_time).astype(int)
+    poses = [3, doc.n_poses // 2, doc.n_poses - 4]
+    if relative_to == "prev":  # a previous pose must capture the markers the pose shows
+        poses = [k for k in poses if not np.any(seen[frame[k]] & ~seen[frame[k - 1]])]
+        assert poses, "no pose to test"
+    for k in poses:
         edited = E.edit_pose(doc, k, exaggerate=1.5, relative_to=relative_to)
         out = bake(edited).points
         assert centroid_moved(out, plain) <= bound * size, (k, centroid_moved(out, plain) / size)
         # the shape did change (pose 3 of the breakdance is close to pose 2: 0.8 %)
         assert np.nanmax(np.linalg.norm(out - plain, axis=-1)) > 0.005 * size
+
+
+@pytest.mark.parametrize("name", [EB015, BTS])
+def test_c3d_exaggerate_relative_to_the_average_scales_a_body_shape(name):
+    """The average a walk's pose is exaggerated against is a body's shape:
+    on the BTS walk, whose markers are each seen over another stretch of
+    the walkway, the mean of each marker alone put the right shank 1.6 m
+    ahead of C7, and halving the difference threw it 0.57 m (0.44 of the
+    figure's height).  Now no marker moves more than a fifth of it."""
+    m, doc, plain = c3d_doc(name)
+    size = m.figure_height()
+    for k in (3, doc.n_poses // 2, doc.n_poses - 4):
+        for w in (0.5, 1.5):
+            out = bake(E.edit_pose(doc, k, exaggerate=w, relative_to="average")).points
+            moved = np.nanmax(np.linalg.norm(out - plain, axis=-1))
+            assert 0.005 * size < moved <= 0.2 * size, (k, w, moved / size)
+
+
+def test_c3d_exaggerate_refuses_a_reference_pose_missing_markers_of_the_pose(tmp_path):
+    """Pose 1 of the BTS walk captures 5 of the 22 markers pose 9 shows: the
+    others' places there are gap fillers, no pose to exaggerate against."""
+    path = document_file(dev_document(BTS), tmp_path / "bts.stag")
+    r = CliRunner().invoke(cli, ["edit-pose", str(path), "--pose", "9", "--exaggerate", "2", "--relative-to", "1", "-o", "-"])
+    one_line_error(r, 2, "pose 1 (frame 276) does not capture 17 of the markers pose 9 shows", "average")
 
 
 @pytest.fixture(scope="module")

@@ -205,9 +205,10 @@ def edit_pose(
             raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
         ref = _reference(doc, k, relative_to, len(times), lambda kk: values_at(doc, kk))
         cur = values_at(doc, k)
-        if doc.kind == "c3d":
-            cur, ref = _marker_shapes(doc, times[k], cur, ref)
         mask = exaggeration_mask(doc, joints, subtree)
+        if doc.kind == "c3d":
+            r = _reference_pose(relative_to, k, len(times))
+            cur, ref = _marker_shapes(doc, times, k, r, cur, ref, mask[0])
         deltas = []
         for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
             op = ops_for(tr.kind)
@@ -305,18 +306,47 @@ def _keep_place(doc: Document, cur: list[np.ndarray], values: list[np.ndarray]) 
 
 
 def _marker_shapes(
-    doc: Document, t: float, cur: list[np.ndarray], ref: list[np.ndarray]
+    doc: Document, times: np.ndarray, k: int, r: int | None, cur: list[np.ndarray], ref: list[np.ndarray], selected
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """C3D: the pose and the reference as shapes, each relative to its own
-    body centre (the centroid of the markers captured at the pose's frame,
-    gaps ignored), so that exaggerating scales the shape and not the place:
-    the changes the edit makes then sum to zero over those markers."""
-    frame = int(np.clip(np.rint(t / doc.frame_time), 0, doc.n_frames - 1))
-    seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
-    if not seen.any():
-        seen[:] = True
-    centre = cur[0][seen].mean(axis=0)
-    return [cur[0] - centre], [ref[0] - ref[0][seen].mean(axis=0)]
+    """C3D: pose ``k`` and its reference (pose ``r``, or None: the average) as
+    shapes, each relative to its own body centre, so that exaggerating scales
+    the shape and not the place: the changes the edit makes sum to zero.
+
+    Only the ``selected`` markers captured at pose ``k``'s frame take part;
+    the others keep their places (the reference is the pose itself there).
+    The average is the mean shape over the frames that capture every one of
+    them, each centred on their centroid: a marker's mean over the frames
+    it happens to be seen in (a walkway's start for one, its end for
+    another) is no shape at all.  A reference pose must capture them all.
+    """
+    pts = doc.source.points
+    seen = np.all(np.isfinite(pts), axis=2)  # (T, M)
+    frame = _frame_of(doc, times[k])
+    use = seen[frame] & np.asarray(selected, dtype=bool)
+    if not use.any():
+        raise UsageError(f"pose {k} (frame {frame}) captures none of the markers to exaggerate: all are in a gap there")
+    if r is None:
+        full = np.flatnonzero(np.all(seen[:, use], axis=1))  # pose k's own frame among them
+        shapes = pts[full][:, use]
+        shape_ref = np.mean(shapes - shapes.mean(axis=1, keepdims=True), axis=0)
+    else:
+        at = _frame_of(doc, times[r])
+        missing = np.flatnonzero(use & ~seen[at])
+        if len(missing):
+            first = doc.target_names[int(missing[0])]
+            raise UsageError(
+                f"pose {r} (frame {at}) does not capture {len(missing)} of the markers pose {k} shows "
+                f"({first!r} among them): exaggerate relative to a pose that captures them, or to the average"
+            )
+        shape_ref = ref[0][use] - ref[0][use].mean(axis=0)
+    out_cur = cur[0] - cur[0][use].mean(axis=0)
+    out_ref = out_cur.copy()
+    out_ref[use] = shape_ref
+    return [out_cur], [out_ref]
+
+
+def _frame_of(doc: Document, t: float) -> int:
+    return int(np.clip(np.rint(t / doc.frame_time), 0, doc.n_frames - 1))
 
 
 def _planted_held(doc: Document, times: np.ndarray, k: int, delta: np.ndarray) -> np.ndarray:
@@ -336,7 +366,7 @@ def _planted_held(doc: Document, times: np.ndarray, k: int, delta: np.ndarray) -
             planted[labels.index(c.joint)] = True
     if not planted.any() or planted.all():
         return delta
-    frame = int(np.clip(np.rint(t / doc.frame_time), 0, doc.n_frames - 1))
+    frame = _frame_of(doc, t)
     seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
     free = seen & ~planted
     if not free.any():
@@ -355,17 +385,23 @@ def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[n
 def _reference(doc: Document, k: int, relative_to: str, n_poses: int, values_at) -> list[np.ndarray]:
     """The reference pose of pose ``k`` among ``n_poses`` (``values_at(r)``
     gives pose ``r``'s values)."""
+    r = _reference_pose(relative_to, k, n_poses)
+    return average_pose(doc) if r is None else values_at(r)
+
+
+def _reference_pose(relative_to: str, k: int, n_poses: int) -> int | None:
+    """The index of pose ``k``'s reference pose, or None for the average."""
     key = str(relative_to).strip().lower()
     if key == "average":
-        return average_pose(doc)
+        return None
     if key == "prev":
         if k == 0:
             raise UsageError("pose 0 has no previous pose to exaggerate against")
-        return values_at(k - 1)
+        return k - 1
     if key == "next":
         if k == n_poses - 1:
             raise UsageError(f"pose {k} is the last; it has no next pose to exaggerate against")
-        return values_at(k + 1)
+        return k + 1
     try:
         r = int(key)
     except ValueError:
@@ -375,7 +411,7 @@ def _reference(doc: Document, k: int, relative_to: str, n_poses: int, values_at)
     r %= n_poses
     if r == k:
         raise UsageError("a pose cannot be exaggerated relative to itself")
-    return values_at(r)
+    return r
 
 
 def values_from_motion(
