@@ -45,3 +45,26 @@ def test_variables_that_never_move_are_not_retimed(bandai_run):
     changed = np.any(out.refinements() != doc.refinements(), axis=0)
     assert not any(changed[i] for i, n in enumerate(names) if n.endswith(".position"))
     assert changed[names.index("LowerArm_L")]
+
+
+def test_retiming_a_document_without_inner_poses_says_it_changes_nothing(tmp_path):
+    """The idle clip extracts to its first and last pose only: succession
+    and randomize say, in one line, that there is nothing to retime (they
+    used to exit 0 in silence with the motion unchanged)."""
+    from click.testing import CliRunner
+
+    from staggered_cli.cli.main import cli
+
+    from .conftest import dev_document, document_file
+
+    doc = dev_document("games105_idle.bvh")
+    assert doc.n_poses == 2
+    path = document_file(doc, tmp_path / "idle.stag")
+    for argv in (
+        ["succession", str(path), "--joint", "@left-arm", "--offset", "0.03"],
+        ["randomize", str(path), "--tau", "0.02", "--seed", "3"],
+    ):
+        r = CliRunner().invoke(cli, [*argv, "-o", str(tmp_path / "out.stag"), "--force"])
+        assert r.exit_code == 0, r.stderr
+        lines = r.stderr.splitlines()
+        assert len(lines) == 1 and "only its first and last pose" in lines[0] and "nothing to retime" in lines[0], lines

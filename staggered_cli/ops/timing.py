@@ -54,9 +54,19 @@ def select_poses(
         a, b = check_time_range(doc, time_range)
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if interior and K:
-        if poses is not None and (mask[0] or mask[-1]):
-            log.warning("the first and last pose pin the clip's ends: their timing is left alone")
+        ends = poses is not None and (mask[0] or mask[-1])
         mask[0] = mask[-1] = False
+        if not mask.any():
+            # one line saying the edit changes nothing, rather than silence
+            if K <= 2:
+                log.warning(
+                    "the document has only its first and last pose, which pin the clip's ends: "
+                    "nothing to retime (add poses with `cull --add-time T`)"
+                )
+            else:
+                log.warning("no inner pose is selected (the first and last pin the clip's ends): nothing to retime")
+        elif ends:
+            log.warning("the first and last pose pin the clip's ends: their timing is left alone")
     return mask
 
 
