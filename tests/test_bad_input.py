@@ -1229,3 +1229,20 @@ def test_a_c3d_claiming_a_billion_frames_fails_fast(tmp_path):
             assert code == 1 and needle in err and len(err.splitlines()) == 1, err
             assert peak < MAX_PEAK and elapsed < MAX_SECONDS
     assert not (tmp_path / "out").exists()
+
+
+def test_a_document_is_not_written_under_a_motion_file_name(tmp_path):
+    """`extract walk.bvh -o out.bvh` wrote an NPZ document (a zip) under a
+    BVH name; like `bake -o x.stag`, the name is refused (extract before
+    reading the clip), in one line, and nothing is written."""
+    from .conftest import dev_document, document_file, one_line_error
+
+    src = mocap("cmu_02_01_walk.bvh")
+    doc = document_file(dev_document("cmu_02_01_walk.bvh"), tmp_path / "walk.stag")
+    for argv, out in (
+        (["extract", str(src)], tmp_path / "out.bvh"),
+        (["cull", str(doc), "--keep", "5"], tmp_path / "out.C3D"),
+    ):
+        r = CliRunner().invoke(cli, [*argv, "-o", str(out)])
+        one_line_error(r, 2, out.name, "this writes a staggered-pose document, but the name says")
+        assert not out.exists()

@@ -36,6 +36,7 @@ def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
     from ..io.document import document_pieces, to_parts
     from ..io.files import STDIO
 
+    check_document_output(output)
     pipe = getattr(sys.stdout, "buffer", None) if output == STDIO else None
     if hasattr(pipe, "document"):
         pipe.document = doc
@@ -74,6 +75,20 @@ def check_motion_output(kind: str, output: str) -> None:
     if output != "-" and said is not None and said != kind:
         what = "a document" if said == "document" else said.upper()
         raise UsageError(f"a {kind.upper()} document bakes to {kind.upper()}, but the name says {what}", source=output)
+
+
+def check_document_output(output: str) -> None:
+    """Refuse a document output name that says BVH or C3D: ``extract -o
+    walk.bvh`` would otherwise write a zip under a motion file's name."""
+    import os
+
+    said = _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
+    if output != "-" and said in ("bvh", "c3d"):
+        raise UsageError(
+            f"this writes a staggered-pose document, but the name says {said.upper()} "
+            "(`bake` writes the motion; name the document .stag)",
+            source=output,
+        )
 
 
 def finite(value: str, what: str) -> float:

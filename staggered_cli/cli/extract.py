@@ -6,7 +6,7 @@ import os
 
 import click
 
-from .common import check_output, write_document
+from .common import check_document_output, check_output, write_document
 from .options import force_option, format_option, input_argument, output_option
 
 
@@ -127,6 +127,7 @@ def extract(
     from ..ops.extract import extract as run_extract
 
     check_output(output, force)
+    check_document_output(output)  # before the work, not after it
     motion, data = _read_motion(input_path)
     name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
     doc = run_extract(
