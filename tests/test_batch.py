@@ -218,6 +218,15 @@ def test_steps_hand_documents_over_and_bake_what_the_pipe_bakes(tmp_path):
         ("cull --keep 30% walk.stag", ["step 1", "no FILE"]),
         ("cull --keep 30%||cull --keep 5", ["step 2", "empty step"]),
         ("layer --add --keep 4|layer --list", ["step 2", "'layer --list' does not turn a document"]),
+        # values out of range, which the commands used to check only once a
+        # document was read: each file then failed on its own
+        ("cull --keep -5", ["step 1", "--keep must keep at least one pose"]),
+        ("cull --keep 30%|cull --keep 0%", ["step 2", "--keep percentage"]),
+        ("cull --interval 5:1", ["step 1", "--interval"]),
+        ("detail --gain 50", ["step 1", "--gain must be a number from 0 to 10"]),
+        ("edit-pose --pose 3 --exaggerate 999", ["step 1", "--exaggerate must be a number"]),
+        ("edit-pose --pose 3 --ease 20", ["step 1", "--ease must be a number"]),
+        ("layer --add --keep -3", ["step 1", "--keep must keep at least one pose"]),
     ],
 )
 def test_bad_steps_fail_before_any_file(tmp_path, steps, words):
@@ -258,6 +267,9 @@ def test_dry_run_lists_and_builds_nothing(tmp_path):
     assert r.exit_code == 0, r.output
     assert "a/idle.bvh" in r.stdout and "todo" in r.stdout and "1 to build" in r.stdout
     assert not (tmp_path / "out").exists()
+    # a dry run checks the steps as a run does
+    r = _batch(str(lib), str(tmp_path / "out"), "--dry-run", "--steps", "cull --keep -5")
+    assert r.exit_code == 2 and "--keep must keep at least one pose" in r.stderr and r.stdout == ""
 
 
 def test_batch_help_imports_no_numpy():

@@ -42,21 +42,26 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
     exactly N of them.  The displacement maps are refitted so that the baked
     motion is unchanged.
     """
-    from ..ops.cull import add_pose, base_motion, choose, keep_poses
+    from ..ops.cull import add_pose, base_motion, choose, keep_count, keep_poses
 
     check_output(output, force)
     times = [finite(t, "--add-time") for t in add_times]
     choosing = keep is not None or interval is not None or select is not None
     if not choosing and not times:
         raise click.UsageError("say what to keep: --keep, --interval, --select, or --add-time")
+    # what the options say alone is checked before the document is read (a
+    # batch checks its steps so, once, before any file)
+    if keep is not None:
+        keep_count(keep, 1)
+    span, chosen = time_range(interval, "--interval"), int_list(select, "--select")
     doc = read_document(input_path)
     if choosing:
         motion = base_motion(doc)  # ranking and refitting both read it: evaluated once
         mask = choose(
             doc,
             keep=keep,
-            interval=time_range(interval, "--interval"),
-            select=int_list(select, "--select"),
+            interval=span,
+            select=chosen,
             ignore_contacts=ignore_contacts,
             by=by,
             motion=motion,

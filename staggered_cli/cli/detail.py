@@ -27,10 +27,12 @@ def detail(input_path, gain, joints, subtree, time, output, force, fmt):
     retimes keep the result.
     """
     from ..ops.edit_pose import joint_mask
+    from ..ops.layers import check_gain
     from ..ops.layers import detail as op
 
     check_output(output, force)
     g = finite(gain, "--gain")
+    check_gain(g)  # before the document is read (a batch checks its steps so)
     if subtree and not joints:
         raise click.UsageError("--subtree needs --joints: it adds the descendants of the joints named there")
     span = time_range(time, "--time")

@@ -102,6 +102,13 @@ def edit_pose(
     tra = triples(translate, "--translate")
     w = finite(exaggerate, "--exaggerate") if exaggerate is not None else None
     x = finite(ease, "--ease") if ease is not None else None
+    # the values alone are checked before the document is read (a batch checks its steps so)
+    if w is not None:
+        ops.check_exaggerate(w)
+    if x is not None:
+        from ..ops.layers import check_ease
+
+        check_ease(x)
     if new_time is not None and shift is not None:
         raise click.UsageError("give --time or --shift, not both")
     if subtree and not joints:

@@ -40,6 +40,10 @@ def layer(input_path, add, keep, times, remove, list_, output, force, fmt):
         raise click.UsageError("--add needs the layer's poses: --keep N or --times T,T,...")
     if not list_:
         check_output(output, force)
+    if keep is not None:  # before the document is read (a batch checks its steps so)
+        from ..ops.cull import keep_count
+
+        keep_count(keep, 1)
     doc = read_document(input_path)
     if list_:
         click.echo(_table(doc, ops.layer_rows(doc)))

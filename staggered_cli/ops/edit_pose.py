@@ -201,8 +201,7 @@ def edit_pose(
     if rotate or translate:
         doc = apply(doc, offsets(doc, rotate, translate))
     if exaggerate is not None:
-        if not np.isfinite(exaggerate) or abs(exaggerate) > MAX_EXAGGERATE:
-            raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
+        check_exaggerate(exaggerate)
         ref = _reference(doc, k, relative_to, len(times), lambda kk: values_at(doc, kk))
         cur = values_at(doc, k)
         mask = exaggeration_mask(doc, joints, subtree)
@@ -232,6 +231,12 @@ def edit_pose(
             deltas.append(d)
         doc = apply(doc, deltas)
     return doc
+
+
+def check_exaggerate(w: float) -> None:
+    """Refuse an ``--exaggerate`` weight that is not a number within :data:`MAX_EXAGGERATE`."""
+    if not np.isfinite(w) or abs(w) > MAX_EXAGGERATE:
+        raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
 
 
 def place_joint(doc: Document) -> int:

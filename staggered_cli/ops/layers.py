@@ -173,8 +173,7 @@ def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndar
     its editing and extreme knots too), for the variables in ``masks`` (per
     track (V,) bool, None: all).  The displacement maps keep the detail.
     """
-    if not np.isfinite(x) or not 0.0 <= x <= MAX_EASE:
-        raise UsageError(f"--ease must be a number from 0 to {MAX_EASE:g}, got {x:g}")
+    check_ease(x)
     k = check_pose_index(doc, k, layer)
     tracks = []
     for n, tr in enumerate(doc.tracks):
@@ -194,6 +193,18 @@ def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndar
         tan_b[hit] = b_lin + x * (lay.tan_b[hit] - b_lin)
         tracks.append(tr.with_layer(layer, replace(lay, tan_a=tan_a, tan_b=tan_b)))
     return doc.with_tracks(tuple(tracks))
+
+
+def check_gain(gain: float) -> None:
+    """Refuse a ``detail --gain`` outside 0 to :data:`MAX_GAIN`."""
+    if not np.isfinite(gain) or not 0.0 <= gain <= MAX_GAIN:
+        raise UsageError(f"--gain must be a number from 0 to {MAX_GAIN:g}, got {gain:g}")
+
+
+def check_ease(x: float) -> None:
+    """Refuse an ``--ease`` outside 0 to :data:`MAX_EASE`."""
+    if not np.isfinite(x) or not 0.0 <= x <= MAX_EASE:
+        raise UsageError(f"--ease must be a number from 0 to {MAX_EASE:g}, got {x:g}")
 
 
 def detail_gain(t: np.ndarray, gain: float, time_range: tuple[float, float] | None, duration: float) -> np.ndarray:
@@ -227,8 +238,7 @@ def detail(
     accentuates it.  ``masks`` (per track (V,) bool) limits it to some
     variables, ``time_range`` (A, B) seconds to part of the clip (see
     :func:`detail_gain`)."""
-    if not np.isfinite(gain) or not 0.0 <= gain <= MAX_GAIN:
-        raise UsageError(f"--gain must be a number from 0 to {MAX_GAIN:g}, got {gain:g}")
+    check_gain(gain)
     if time_range is not None:
         check_time_range(doc, time_range)
     tracks = []
