@@ -327,3 +327,17 @@ def test_from_bvh_refuses_a_joint_under_another_parent(cmu_walk, tmp_path):
     )
     with pytest.raises(DataError, match="'RightUpLeg': its parent is 'LHipJoint', not 'RHipJoint'"):
         E.values_from_motion(doc, moved, 0)
+
+
+def test_a_negative_pose_index_counts_from_the_end_and_past_it_is_refused(tmp_path):
+    """As the README says (command-line conventions): `--pose -1` is the last
+    pose, `--pose -K-1` one line, exit 2."""
+    doc = dev_document("cmu_02_01_walk.bvh")
+    k = doc.n_poses - 2
+    a = E.edit_pose(doc, -2, rotate={"LeftArm": (0.0, 0.0, 10.0)})
+    b = E.edit_pose(doc, k, rotate={"LeftArm": (0.0, 0.0, 10.0)})
+    assert bvh_bytes(bake(a)) == bvh_bytes(bake(b)) != bvh_bytes(dev_bake("cmu_02_01_walk.bvh"))
+    path = document_file(doc, tmp_path / "walk.stag")
+    far = str(-doc.n_poses - 1)
+    r = CliRunner().invoke(cli, ["edit-pose", str(path), "--pose", far, "--rotate", "LeftArm=0,0,10", "-o", "-"])
+    one_line_error(r, 2, f"pose {far} is out of range", f"poses 0 to {doc.n_poses - 1}")
