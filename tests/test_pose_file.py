@@ -67,6 +67,9 @@ def test_export_writes_the_source_layout_one_frame_per_pose(extracted):
     assert r.exit_code == 0, r.stderr
     assert r.stderr.splitlines() == [r.stderr.strip()]
     assert "frame k is pose k" in r.stderr and "Blender shows frame k as frame k+1" in r.stderr
+    # the times to the frames' precision, as every message prints them
+    assert f"t = {doc.seconds(doc.pose_t[0])[:-2]}, {doc.seconds(doc.pose_t[1])[:-2]}," in r.stderr
+    assert f"last {doc.seconds(doc.pose_t[-1])})" in r.stderr
     text = r.stdout
     src_text = mocap(CLIPS[[c in str(doc.source_name) for c in CLIPS].index(True)]).read_text()
     # same hierarchy, channels, orders, offsets; same frame time as written

@@ -92,9 +92,10 @@ def _warn_layers(doc: Document, what: str) -> None:
 def frame_note(doc: Document, name: str) -> str:
     """The stderr line of ``export-poses``: how frames map to poses."""
     t = doc.pose_t
-    times = ", ".join(f"{x:.4g}" for x in t[:3]) + (", ..." if len(t) > 3 else "")
+    # to the frames' precision, as every message prints times (0.567 s at 120 Hz)
+    times = ", ".join(doc.seconds(x)[:-2] for x in t[:3]) + (", ..." if len(t) > 3 else "")
     return (
-        f"{name}: {len(t)} frames, frame k is pose k (t = {times} s; last {t[-1]:.4g} s); "
+        f"{name}: {len(t)} frames, frame k is pose k (t = {times} s; last {doc.seconds(t[-1])}); "
         "Blender shows frame k as frame k+1"
     )
 
