@@ -217,7 +217,8 @@ def test_c3d_exaggerate_refuses_a_reference_pose_missing_markers_of_the_pose(tmp
     """Pose 1 of the BTS walk captures 5 of the 22 markers pose 9 shows: the
     others' places there are gap fillers, no pose to exaggerate against."""
     path = document_file(dev_document(BTS), tmp_path / "bts.stag")
-    r = CliRunner().invoke(cli, ["edit-pose", str(path), "--pose", "9", "--exaggerate", "2", "--relative-to", "1", "-o", "-"])
+    argv = ["edit-pose", str(path), "--pose", "9", "--exaggerate", "2", "--relative-to", "1", "-o", "-"]
+    r = CliRunner().invoke(cli, argv)
     one_line_error(r, 2, "pose 1 (frame 276) does not capture 17 of the markers pose 9 shows", "average")
 
 
