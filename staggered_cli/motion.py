@@ -453,6 +453,7 @@ def channels_from_local(
             ref = reference[lo : lo + step, cs]
             ang = quat.to_euler(rotations[lo : lo + step, js], order, ref.reshape(len(ref), len(js), 3))
             out[lo : lo + step, cs] = ang.reshape(len(ref), -1)
+        _follow_where_far(out, rotations, reference, order, js, cs)
     for j, cols, order in partial:
         if len(order) == 2:
             out[:, cols] = _two_axis_angles(rotations[:, j], order, reference[:, cols])
@@ -469,6 +470,40 @@ def channels_from_local(
             if col >= 0:
                 out[:, col] = translations[:, j, axis]
     return out
+
+
+#: Degrees: an angle triple this far from the reference in one of its
+#: angles was chosen by a reference that no longer says which triple.
+_FAR_FROM_REFERENCE = 90.0
+
+
+def _follow_where_far(out, rotations, reference, order: str, js, cs) -> None:
+    """Where an edit took a joint's rotation far from the source's angles
+    (an angle more than :data:`_FAR_FROM_REFERENCE` from the reference),
+    choose its triple nearest the previous frame's instead (in place).
+
+    The reference picks among equivalent triples, whole turn by whole turn
+    per angle, which is the source's own choice where the motion is still
+    the source's.  Far from it the pick is arbitrary: a retimed motion
+    meeting the source's switch to the twin triple (cmu3dsmax's RThumb) got
+    one angle 360 degrees off for two frames.  Frames near the reference
+    (every unedited one) keep its choice.
+    """
+    T = len(out)
+    if T < 2:
+        return
+    A = out[:, cs].reshape(T, len(js), 3)
+    with np.errstate(invalid="ignore"):
+        far = np.any(np.abs(A - reference[:, cs].reshape(T, len(js), 3)) > _FAR_FROM_REFERENCE, axis=2)
+    far[0] = False
+    frames = np.flatnonzero(far.any(axis=1))
+    if not len(frames):
+        return
+    js = np.asarray(js)
+    for f in frames:  # in order: each frame follows the one before, as chosen
+        jj = np.flatnonzero(far[f])
+        A[f, jj] = quat.to_euler(rotations[f, js[jj]], order, A[f - 1, jj])
+    out[:, cs] = A.reshape(T, -1)
 
 
 def _two_axis_angles(q: np.ndarray, order: str, reference: np.ndarray) -> np.ndarray:
