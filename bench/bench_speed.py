@@ -376,31 +376,41 @@ def library(tmp: Path, copies: int, repeats: int) -> list[bool]:
         for p in bvh:
             (folder / p.name).symlink_to(p)
             frames += per_file[p.name]
-    floor_rate = _floor_rate(tmp, repeats)
-    scale = floor_rate / FLOOR_RATE_THEN
     print(
-        f"  {copies} copies of {len(bvh)} BVH files: {frames} source frames; the in-process floor on {CLIP}: "
-        f"{floor_rate:,.0f} frames/s ({FLOOR_RATE_THEN:,.0f} when the goals were set: goals x {scale:.2f})"
+        f"  {copies} copies of {len(bvh)} BVH files: {frames} source frames; best of {repeats} runs, each "
+        f"against the in-process floor on {CLIP} measured just before it ({FLOOR_RATE_THEN:,.0f} frames/s "
+        "when the goals were set)"
     )
     ok = []
     for steps, goal_then in (("", BATCH_GOAL), (f"cull --keep 30%|{SUCCESSION}", BATCH_STEPS_GOAL)):
-        goal = goal_then * scale
         out = tmp / "library_out"
         cmd = [STAGGERED, "-q", "batch", str(src), str(out), "--jobs", "2", "--force"]
         if steps:
             cmd += ["--steps", steps]
-        t = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        wall = time.perf_counter() - t
-        if proc.returncode != 0:
-            print("  " + "\n  ".join(proc.stdout.splitlines()[-5:] + proc.stderr.splitlines()[-5:]))
-        rate = frames / wall
+        best = None  # (rate against the goal, rate, wall, scale)
+        failed = False
+        for _ in range(repeats):
+            # this machine's speed moves within seconds: each run is judged
+            # against a floor measured next to it
+            scale = _floor_rate(tmp, 1) / FLOOR_RATE_THEN
+            t = time.perf_counter()
+            proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            wall = time.perf_counter() - t
+            if proc.returncode != 0:
+                print("  " + "\n  ".join(proc.stdout.splitlines()[-5:] + proc.stderr.splitlines()[-5:]))
+                failed = True
+                break
+            rate = frames / wall
+            if best is None or rate / (goal_then * scale) > best[0]:
+                best = (rate / (goal_then * scale), rate, wall, scale)
+        _, rate, wall, scale = best if best is not None else (0.0, 0.0, 0.0, 1.0)
+        goal = goal_then * scale
         ok.append(
             _line(
                 f"batch --jobs 2 {'extract + bake' if not steps else '+ cull 30% + succession'}",
                 f"{rate:,.0f} frames/s ({wall:.1f} s)",
                 f">= {goal:,.0f} ({goal_then / 1000:g}k x {scale:.2f})",
-                proc.returncode == 0 and rate >= goal,
+                not failed and rate >= goal,
             )
         )
     return ok
