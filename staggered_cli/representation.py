@@ -470,8 +470,7 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
     s_a = np.zeros(int(samp_ptr[-1]))
     disp = np.zeros((int(samp_ptr[-1]), d))
     # the spline at the samples, kept for a bake in this process where it is small
-    keep_spline = disp.nbytes <= _FITTED_BYTES
-    spline = np.zeros_like(disp) if keep_spline else None
+    spline = np.zeros_like(disp) if disp.nbytes <= _FITTED_BYTES else None
     for i0, i1 in _variable_groups(counts, _FIT_GROUP):
         g0, g1 = int(seg_ptr[i0]), int(seg_ptr[i1])
         gseg, us, vals = [], [], []
@@ -501,11 +500,16 @@ def fit_layer(kind: str, knots: Knots, samples_t: list[np.ndarray], samples_v: l
         np.asarray(knots.pose, dtype=int),
         np.asarray(knots.editing, dtype=bool),
     )
-    fitted = None
-    if spline is not None:
-        spline.flags.writeable = False
-        fitted = _Fitted(knots, a, b, samp_ptr, s_a, spline)
-    return Layer(knots, a, b, samp_ptr, s_a, disp, fitted)
+    return _fitted_layer(knots, a, b, samp_ptr, s_a, disp, spline)
+
+
+def _fitted_layer(knots, tan_a, tan_b, samp_ptr, samp_s, samp_d, spline: np.ndarray | None) -> Layer:
+    """The layer of these arrays, holding ``spline`` (its fit's values at the
+    samples, or None) with the very arrays it belongs to."""
+    if spline is None:
+        return Layer(knots, tan_a, tan_b, samp_ptr, samp_s, samp_d)
+    spline.flags.writeable = False
+    return Layer(knots, tan_a, tan_b, samp_ptr, samp_s, samp_d, _Fitted(knots, tan_a, tan_b, samp_ptr, samp_s, spline))
 
 
 #: The largest spline at the samples a fitted layer keeps (:class:`_Fitted`):
@@ -1027,12 +1031,7 @@ def restructure(
     tan_a[kept], tan_b[kept] = old.tan_a[kept_old[kept]], old.tan_b[kept_old[kept]]
     tan_a[refit], tan_b[refit] = a_new, b_new
     samp_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(int)
-    samp_s = out_s[:w]
-    fitted = None
-    if out_f is not None:
-        out_f.flags.writeable = False
-        fitted = _Fitted(knots, tan_a, tan_b, samp_ptr, samp_s, out_f[:w])
-    layer = Layer(knots, tan_a, tan_b, samp_ptr, samp_s, out_d[:w], fitted)
+    layer = _fitted_layer(knots, tan_a, tan_b, samp_ptr, out_s[:w], out_d[:w], None if out_f is None else out_f[:w])
     return track.with_base(layer)
 
 

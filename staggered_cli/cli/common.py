@@ -64,15 +64,20 @@ def write_motion(motion, output: str, force: bool) -> None:
 _KIND_OF_EXTENSION = {".bvh": "bvh", ".c3d": "c3d", ".stag": "document", ".npz": "document", ".json": "document"}
 
 
+def _kind_in_name(output: str) -> str | None:
+    """What the output name's extension says it holds (None: ``-`` or no known extension)."""
+    import os
+
+    return None if output == "-" else _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
+
+
 def check_motion_output(kind: str, output: str) -> None:
     """Refuse an output name whose extension says another kind than the
     ``kind`` (``'bvh'`` or ``'c3d'``) a bake writes: ``-o walk.c3d`` of a BVH
     document would otherwise hold BVH text.  Names without a known
     extension (``-``, ``/dev/null``, ``out.txt``) are taken as they are."""
-    import os
-
-    said = _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
-    if output != "-" and said is not None and said != kind:
+    said = _kind_in_name(output)
+    if said is not None and said != kind:
         what = "a document" if said == "document" else said.upper()
         raise UsageError(f"a {kind.upper()} document bakes to {kind.upper()}, but the name says {what}", source=output)
 
@@ -80,10 +85,8 @@ def check_motion_output(kind: str, output: str) -> None:
 def check_document_output(output: str) -> None:
     """Refuse a document output name that says BVH or C3D: ``extract -o
     walk.bvh`` would otherwise write a zip under a motion file's name."""
-    import os
-
-    said = _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
-    if output != "-" and said in ("bvh", "c3d"):
+    said = _kind_in_name(output)
+    if said in ("bvh", "c3d"):
         raise UsageError(
             f"this writes a staggered-pose document, but the name says {said.upper()} "
             "(`bake` writes the motion; name the document .stag)",

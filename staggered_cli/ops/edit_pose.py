@@ -202,12 +202,13 @@ def edit_pose(
         doc = apply(doc, offsets(doc, rotate, translate))
     if exaggerate is not None:
         check_exaggerate(exaggerate)
-        ref = _reference(doc, k, relative_to, len(times), lambda kk: values_at(doc, kk))
+        r = _reference_pose(relative_to, k, len(times))
         cur = values_at(doc, k)
         mask = exaggeration_mask(doc, joints, subtree)
-        if doc.kind == "c3d":
-            r = _reference_pose(relative_to, k, len(times))
-            cur, ref = _marker_shapes(doc, times, k, r, cur, ref, mask[0])
+        if doc.kind == "c3d":  # the average of a marker set is its own (a mean shape)
+            cur, ref = _marker_shapes(doc, times, k, r, cur, None if r is None else values_at(doc, r), mask[0])
+        else:
+            ref = average_pose(doc) if r is None else values_at(doc, r)
         deltas = []
         for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
             op = ops_for(tr.kind)
@@ -311,9 +312,10 @@ def _keep_place(doc: Document, cur: list[np.ndarray], values: list[np.ndarray]) 
 
 
 def _marker_shapes(
-    doc: Document, times: np.ndarray, k: int, r: int | None, cur: list[np.ndarray], ref: list[np.ndarray], selected
+    doc: Document, times: np.ndarray, k: int, r: int | None, cur: list[np.ndarray], ref, selected
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """C3D: pose ``k`` and its reference (pose ``r``, or None: the average) as
+    """C3D: pose ``k`` and its reference (pose ``r`` of values ``ref``, or
+    None for both: the average) as
     shapes, each relative to its own body centre, so that exaggerating scales
     the shape and not the place: the changes the edit makes sum to zero.
 
@@ -384,14 +386,8 @@ def _planted_held(doc: Document, times: np.ndarray, k: int, delta: np.ndarray) -
 
 def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[np.ndarray]:
     """Per track (V, D) values of the reference pose for exaggeration."""
-    return _reference(doc, k, relative_to, doc.n_poses, lambda r: pose_values(doc, r, on))
-
-
-def _reference(doc: Document, k: int, relative_to: str, n_poses: int, values_at) -> list[np.ndarray]:
-    """The reference pose of pose ``k`` among ``n_poses`` (``values_at(r)``
-    gives pose ``r``'s values)."""
-    r = _reference_pose(relative_to, k, n_poses)
-    return average_pose(doc) if r is None else values_at(r)
+    r = _reference_pose(relative_to, k, doc.n_poses)
+    return average_pose(doc) if r is None else pose_values(doc, r, on)
 
 
 def _reference_pose(relative_to: str, k: int, n_poses: int) -> int | None:
