@@ -150,3 +150,31 @@ HEIGHTS = {
     "bandai2_run_normal_001.bvh": 124.9769389429223,
     "cmu_05_06_modern_dance.bvh": 24.800614010288434,
 }
+
+
+@pytest.mark.parametrize("name", ["cmu_01_01_forward_jumps.bvh", "bandai1_walk_normal_001.bvh"])
+def test_forward_kinematics_has_the_bits_of_the_quaternion_products(name):
+    """The component-major chain gives, to the bit, what ``quat.mul`` and
+    ``quat.mul_vec`` give joint by joint on frame-major arrays (the real
+    clip's rotations, and random ones with translations broadcast from one
+    frame)."""
+    m = dev_motion(name)
+    sk = m.skeleton
+    rng = np.random.default_rng(5)
+    rot = m.local_rotations()
+    tr = m.local_translations()
+    cases = [
+        (rot, tr),
+        (quat.normalize(rng.normal(size=(57, sk.n_joints, 4))), np.broadcast_to(tr[:1] * 3.0, (57, sk.n_joints, 3))),
+    ]
+    for r, t in cases:
+        want_r, want_p = np.empty(r.shape), np.empty(t.shape)
+        for j, p in enumerate(sk.parents):
+            if p < 0:
+                want_r[:, j], want_p[:, j] = r[:, j], t[:, j]
+            else:
+                want_r[:, j] = quat.mul(want_r[:, p], r[:, j])
+                want_p[:, j] = want_p[:, p] + quat.mul_vec(want_r[:, p], t[:, j])
+        got_r, got_p = forward_kinematics(sk, r, t)
+        assert np.array_equal(got_r, want_r) and np.array_equal(got_p, want_p)
+        assert got_r.flags.c_contiguous and got_p.flags.c_contiguous
