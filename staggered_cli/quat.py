@@ -111,6 +111,34 @@ def mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+# the Hamilton product, row by row: (a index, b index) of the first product,
+# then (sign, a index, b index) of each further one, in mul's written order
+MUL_TERMS = (
+    ((0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
+    ((0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
+    ((0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
+    ((0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
+)
+# the same for conj(a) b: every term of a's vector part changes sign
+MUL_CONJ_TERMS = tuple((first, *((-sign, i, j) for sign, i, j in rest)) for first, *rest in MUL_TERMS)
+
+
+def mul_rows(a: np.ndarray, b: np.ndarray, out: np.ndarray, terms: tuple = MUL_TERMS) -> None:
+    """:func:`mul` of component-major quaternions (4, ...) into ``out``
+    (4, ...), each component summed left to right in place through one
+    scratch row: the same bits as :func:`mul` (or, with
+    :data:`MUL_CONJ_TERMS`, as ``mul(conj(a), b)``), without its temporaries."""
+    t = np.empty(out.shape[1:])
+    for row, ((i, j), *rest) in zip(out, terms, strict=True):
+        np.multiply(a[i], b[j], out=row)
+        for sign, i, j in rest:
+            np.multiply(a[i], b[j], out=t)
+            if sign > 0:
+                row += t
+            else:
+                row -= t
+
+
 def mul_vec(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v (..., 3)`` by unit quaternions ``q (..., 4)``."""
     q = np.asarray(q, dtype=float)

@@ -119,7 +119,7 @@ def forward_kinematics(
             world_rot[:, j] = rot[:, j]
             world_pos[:, j] = tr[:, j]
             continue
-        _mul_rows(world_rot[:, p], rot[:, j], world_rot[:, j])
+        quat.mul_rows(world_rot[:, p], rot[:, j], world_rot[:, j])
         pos = world_pos[:, j]
         _mul_vec_rows(world_rot[:, p], tr[:, j], pos)
         pos += world_pos[:, p]
@@ -127,28 +127,6 @@ def forward_kinematics(
         np.ascontiguousarray(np.transpose(world_rot, (2, 1, 0))),
         np.ascontiguousarray(np.transpose(world_pos, (2, 1, 0))),
     )
-
-
-def _mul_rows(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """``quat.mul(a, b)`` of (4, n) rows into ``out`` (4, n): each sum left to right."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    np.multiply(aw, bw, out=out[0])
-    out[0] -= ax * bx
-    out[0] -= ay * by
-    out[0] -= az * bz
-    np.multiply(aw, bx, out=out[1])
-    out[1] += ax * bw
-    out[1] += ay * bz
-    out[1] -= az * by
-    np.multiply(aw, by, out=out[2])
-    out[2] -= ax * bz
-    out[2] += ay * bw
-    out[2] += az * bx
-    np.multiply(aw, bz, out=out[3])
-    out[3] += ax * by
-    out[3] -= ay * bx
-    out[3] += az * bw
 
 
 def _mul_vec_rows(q: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:

@@ -297,7 +297,7 @@ def _qmul_conj_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                 aw * bz - ax * by + ay * bx - az * bw,
             ]
         )
-    return _qmul_rows(a, b, _QMUL_CONJ_TERMS)
+    return _qmul_rows(a, b, quat.MUL_CONJ_TERMS)
 
 
 def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -313,36 +313,15 @@ def _qmul_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                 aw * bz + ax * by - ay * bx + az * bw,
             ]
         )
-    return _qmul_rows(a, b, _QMUL_TERMS)
+    return _qmul_rows(a, b, quat.MUL_TERMS)
 
 
 def _qmul_rows(a: np.ndarray, b: np.ndarray, terms: tuple) -> np.ndarray:
-    # long rows: each summed left to right in place through one scratch row,
-    # the same rounding without the temporaries
-    shape = np.broadcast_shapes(a.shape[1:], b.shape[1:])
-    out = np.empty((4, *shape))
-    t = np.empty(shape)
-    for row, ((i, j), *rest) in zip(out, terms, strict=True):
-        np.multiply(a[i], b[j], out=row)
-        for sign, i, j in rest:
-            np.multiply(a[i], b[j], out=t)
-            if sign > 0:
-                row += t
-            else:
-                row -= t
+    # long rows: each summed left to right in place (quat.mul_rows), the
+    # same rounding without the temporaries
+    out = np.empty((4, *np.broadcast_shapes(a.shape[1:], b.shape[1:])))
+    quat.mul_rows(a, b, out, terms)
     return out
-
-
-# the Hamilton product, row by row: (a index, b index) of the first product,
-# then (sign, a index, b index) of each further one, in the written order
-_QMUL_TERMS = (
-    ((0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
-    ((0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
-    ((0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
-    ((0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
-)
-# the same for conj(a) b: every term of a's vector part changes sign
-_QMUL_CONJ_TERMS = tuple((first, *((-sign, i, j) for sign, i, j in rest)) for first, *rest in _QMUL_TERMS)
 
 
 def _qlog_t(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
