@@ -219,18 +219,36 @@ def check_pose_index(doc: Document, k: int, layer: int = 0) -> int:
     return k % n
 
 
+#: Poses keep at least this many frames apart: two poses within one frame
+#: would squeeze the motion between them into less than a frame (a pop in
+#: the bake), and a time as messages print it (to the frame) names one pose.
+MIN_POSE_GAP_FRAMES = 0.5
+
+
 def check_pose_move(doc: Document, k: int, new_time: float, layer: int = 0) -> None:
     """Refuse moving pose ``k`` of ``layer`` to ``new_time`` unless it is an
-    inner pose and the time lies strictly between its neighbours'."""
+    inner pose and the time lies between its neighbours', at least
+    :data:`MIN_POSE_GAP_FRAMES` frames from each."""
     times = doc.poses_of(layer)
     of = "" if layer == 0 else f" of layer {layer}"
     if k in (0, len(times) - 1):
         raise UsageError(f"the first and last pose{of} pin the clip's ends and cannot be retimed")
-    if not np.isfinite(new_time) or not times[k - 1] < new_time < times[k + 1]:
+    gap = MIN_POSE_GAP_FRAMES * doc.frame_time
+    if not np.isfinite(new_time) or not times[k - 1] + gap <= new_time <= times[k + 1] - gap:
         raise UsageError(
             f"pose {k}{of} can move only between its neighbours "
-            f"({doc.seconds(times[k - 1])} and {doc.seconds(times[k + 1])}), got {doc.seconds(new_time)}"
+            f"({doc.seconds(times[k - 1])} and {doc.seconds(times[k + 1])}) and at least half a frame from each, "
+            f"got {doc.seconds(new_time)}"
         )
+
+
+def pose_near(doc: Document, time: float) -> int | None:
+    """The pose (of the base layer) within :data:`MIN_POSE_GAP_FRAMES` frames
+    of ``time`` seconds, the nearest, or None."""
+    if doc.n_poses == 0:
+        return None
+    k = int(np.argmin(np.abs(doc.pose_t - time)))
+    return k if abs(doc.pose_t[k] - time) < MIN_POSE_GAP_FRAMES * doc.frame_time else None
 
 
 def require_bvh(doc: Document, what: str) -> BvhMotion:

@@ -85,3 +85,24 @@ def test_the_motion_of_another_document_is_not_reused():
     mask = cull.choose(doc, keep="50%")
     culled = cull.keep_poses(edited, mask)
     assert np.abs(bake(culled, ik=False).channels - bake(edited, ik=False).channels).max() < 1e-6
+
+
+def test_a_pose_added_within_half_a_frame_of_another_is_refused(bandai_run):
+    """``--add-time`` refuses a time less than half a frame from a pose, not
+    only the pose's exact time: 0.2 s beside a pose at 0.199992 s (120 Hz)
+    used to make a second pose 8 microseconds away, which a later edit of
+    either turned into a one-frame pop in the bake."""
+    import pytest
+
+    from staggered_cli.errors import UsageError
+
+    _, doc = bandai_run
+    ft, t = doc.frame_time, float(doc.pose_t[3])
+    with pytest.raises(UsageError, match=r"there is already a pose at 0\.60 s \(pose 3\)"):
+        cull.add_pose(doc, t)
+    for dt in (1e-5, -1e-5, 0.49 * ft, -0.49 * ft):
+        with pytest.raises(UsageError, match=r"pose 3 is at 0\.60 s, less than half a frame away"):
+            cull.add_pose(doc, t + dt)
+    added = cull.add_pose(doc, t + 0.51 * ft)
+    assert added.n_poses == doc.n_poses + 1
+    assert np.min(np.diff(added.pose_t)) >= 0.5 * ft

@@ -12,7 +12,7 @@ import logging
 import numpy as np
 
 from .. import placement, quat
-from ..document import Document, check_pose_index
+from ..document import Document, check_pose_index, pose_near
 from ..errors import UsageError
 from ..representation import ROTATION, evaluate, evaluate_at, knots_from_poses, pose_arrays, restructure
 from ..signals import reprioritized
@@ -249,8 +249,14 @@ def add_pose(doc: Document, time: float) -> Document:
     if not np.isfinite(time) or not -half <= time <= doc.duration + half:
         raise UsageError(f"--add-time must lie within the clip (0 to {doc.seconds(doc.duration)}), got {time:g}")
     time = float(min(max(time, 0.0), doc.duration))
-    if np.any(np.abs(doc.pose_t - time) < 1e-9):
-        raise UsageError(f"there is already a pose at {doc.seconds(time)}")
+    near = pose_near(doc, time)
+    if near is not None:
+        if abs(doc.pose_t[near] - time) < 1e-9:
+            raise UsageError(f"there is already a pose at {doc.seconds(time)} (pose {near})")
+        raise UsageError(
+            f"--add-time {time:g}: pose {near} is at {doc.seconds(doc.pose_t[near])}, less than half a frame "
+            "away (poses keep at least half a frame apart)"
+        )
     k_new = int(np.searchsorted(doc.pose_t, time))
     pose_t = np.insert(doc.pose_t, k_new, time)
     tracks = []
