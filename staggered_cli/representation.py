@@ -604,8 +604,11 @@ def _locate(kt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return seg, u
 
 
-def check_knot_order(knot_ptr: np.ndarray, knot_t: np.ndarray, names: tuple[str, ...]) -> None:
-    """Raise KnotOrderError if the knots of a variable are not strictly increasing."""
+def check_knot_order(
+    knot_ptr: np.ndarray, knot_t: np.ndarray, names: tuple[str, ...], frame_time: float | None = None
+) -> None:
+    """Raise KnotOrderError if the knots of a variable are not strictly
+    increasing (the time it names to the precision of ``frame_time``, when given)."""
     from .errors import KnotOrderError
 
     gaps = np.diff(knot_t)
@@ -614,7 +617,13 @@ def check_knot_order(knot_ptr: np.ndarray, knot_t: np.ndarray, names: tuple[str,
     bad = np.flatnonzero(inside & (gaps <= 0.0))
     if len(bad):
         var = int(np.searchsorted(knot_ptr, bad[0], side="right") - 1)
-        raise KnotOrderError(f"knots of {names[var]!r} would cross at {knot_t[bad[0]]:.4f} s")
+        if frame_time is None:
+            at = f"{knot_t[bad[0]]:.4f} s"
+        else:
+            from .document import seconds
+
+            at = seconds(knot_t[bad[0]], frame_time)
+        raise KnotOrderError(f"knots of {names[var]!r} would cross at {at}")
 
 
 # --- evaluation --------------------------------------------------------------
@@ -862,12 +871,13 @@ def sample_times(track: Track, i: int, layer: int = 0) -> np.ndarray:
     return kt[seg] + (s - seg) * (kt[seg + 1] - kt[seg])
 
 
-def with_knot_times(track: Track, knot_t: np.ndarray, layer: int = 0) -> Track:
+def with_knot_times(track: Track, knot_t: np.ndarray, layer: int = 0, frame_time: float | None = None) -> Track:
     """The same track with a layer's knots moved in time (same structure):
     the motion between them is warped, its detail carried along in
-    normalized time."""
+    normalized time.  ``frame_time``: the clip's, for the precision of the
+    time a KnotOrderError names."""
     lay = track.layers[layer]
-    check_knot_order(lay.knots.ptr, knot_t, track.names)
+    check_knot_order(lay.knots.ptr, knot_t, track.names, frame_time)
     return track.with_layer(layer, replace(lay, knots=lay.knots.with_times(knot_t)))
 
 
@@ -892,7 +902,9 @@ def restructure(
     refitted segment are sampled at all.  The layers above the base are kept
     as they are.
     """
-    check_knot_order(knots.ptr, knots.t, track.names)
+    check_knot_order(
+        knots.ptr, knots.t, track.names, None if frame_t is None or len(frame_t) < 2 else frame_t[1] - frame_t[0]
+    )
     old = track.base
     V = track.n_vars
     kept_old = _unchanged_segments(old.knots, knots)  # (S_new,) old segment index or -1

@@ -68,3 +68,58 @@ def test_retiming_a_document_without_inner_poses_says_it_changes_nothing(tmp_pat
         assert r.exit_code == 0, r.stderr
         lines = r.stderr.splitlines()
         assert len(lines) == 1 and "only its first and last pose" in lines[0] and "nothing to retime" in lines[0], lines
+
+
+def test_a_pose_moves_no_closer_than_half_a_frame_to_a_neighbour(bandai_run):
+    """A pose moved within half a frame of a neighbour would squeeze the
+    motion between them into less than a frame: refused in one line, as a
+    move past the neighbour is."""
+    import pytest
+
+    from staggered_cli.errors import UsageError
+
+    _, doc = bandai_run
+    ft = doc.frame_time
+    for t in (doc.pose_t[5] - 0.4 * ft, doc.pose_t[3] + 1e-6, doc.pose_t[5]):
+        with pytest.raises(
+            UsageError, match=r"pose 4 can move only between its neighbours \(.*\) and at least half a frame from each"
+        ):
+            timing.retime_pose(doc, 4, t)
+    moved = timing.retime_pose(doc, 4, doc.pose_t[4] + ft)
+    assert moved.pose_t[4] == doc.pose_t[4] + ft
+
+
+def test_a_succession_that_moves_nothing_says_so(bandai_run, caplog):
+    """A leaf joint (nothing below it), a chain of one or ``--offset 0``
+    keep every knot where it is: one warning line says so instead of silence."""
+    _, doc = bandai_run
+    for kwargs, needle in (
+        ({"joint": "Hand_L", "offset": 0.03}, "--joint Hand_L: no joint below it has a variable"),
+        ({"chain": ["Hand_L"], "offset": 0.03}, "--chain Hand_L: the first of a chain keeps its timing"),
+        ({"joint": "Shoulder_L", "offset": 0.0}, "--offset 0: nothing to retime"),
+    ):
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            out = timing.succession(doc, kwargs.pop("offset"), 1.5, **kwargs)
+        assert [r.getMessage() for r in caplog.records if needle in r.getMessage()], (needle, caplog.text)
+        assert "nothing to retime" in caplog.text
+        assert np.array_equal(out.refinements(), doc.refinements())
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        timing.succession(doc, 0.01, 1.0, joint="Shoulder_L", clamp=True)
+    assert "nothing to retime" not in caplog.text
+
+
+def test_a_knot_crossing_names_its_time_to_the_frame():
+    """The time a crossing names has the frame's decimals (3 at 120 Hz), as
+    every other time in a message, when the frame time is known."""
+    import pytest
+
+    from staggered_cli.errors import KnotOrderError
+    from staggered_cli.representation import check_knot_order
+
+    ptr, t = np.array([0, 3]), np.array([0.0, 0.90166, 0.90166])
+    with pytest.raises(KnotOrderError, match=r"knots of 'Toe' would cross at 0\.902 s$"):
+        check_knot_order(ptr, t, ("Toe",), 1 / 120)
+    with pytest.raises(KnotOrderError, match=r"would cross at 0\.9017 s$"):
+        check_knot_order(ptr, t, ("Toe",))

@@ -197,7 +197,7 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     for i in range(tr.n_vars):
         sl = tr.knot_slice(i)
         warped_t[sl] = warp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
-    warped = with_knot_times(tr, warped_t)
+    warped = with_knot_times(tr, warped_t, frame_time=doc.frame_time)
     # editing knots are measured again where a variable's timing changed; the
     # others keep their values to the bit, so that their segments are not refitted
     moved = np.any(new_refine != refine, axis=0)
@@ -288,6 +288,23 @@ def succession(
         step = np.where(depth > 0, offset * np.abs(depth.astype(float)) ** power, 0.0)
     if not np.all(np.isfinite(step)) or np.abs(step).max(initial=0.0) > _longest_shift(doc):
         raise UsageError(f"--offset {offset:g} with --power {power:g} shifts knots beyond the clip's length")
+    if not np.any(step) and poses.any():
+        # one line saying the edit changes nothing, rather than silence
+        if offset == 0.0:
+            log.warning("--offset 0: nothing to retime")
+        elif chain:
+            log.warning(
+                "--chain %s: the first of a chain keeps its timing%s: nothing to retime "
+                "(give two or more markers or joints, in order)",
+                ",".join(chain),
+                "" if len(chain) == 1 else " and the others have no variables",
+            )
+        else:
+            log.warning(
+                "--joint %s: no joint below it has a variable (the joint itself keeps its timing): "
+                "nothing to retime (start higher up the limb)",
+                joint,
+            )
     delta = poses[:, None] * step[None, :]
     parents = None
     if doc.kind == "c3d" and chain:
@@ -365,7 +382,7 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
     for tr in doc.tracks:
         kt = np.where(tr.knot_pose == k, tr.knot_t + dt, tr.knot_t)
         try:
-            tracks.append(with_knot_times(tr, kt))
+            tracks.append(with_knot_times(tr, kt, frame_time=doc.frame_time))
         except KnotOrderError as exc:
             raise KnotOrderError(f"moving pose {k} to {doc.seconds(new_time)}: {exc}") from None
     pose_t = doc.pose_t.copy()
