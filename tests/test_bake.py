@@ -174,6 +174,27 @@ def test_bake_refuses_an_output_extension_of_the_other_kind():
         assert not out.exists()
 
 
+def test_export_poses_plot_and_preview_refuse_an_output_name_of_another_kind(tmp_path):
+    """``export-poses -o poses.c3d`` used to write BVH text under a C3D name
+    and ``plot -o c.bvh`` a PNG under a BVH name, exit 0: refused in one
+    line, before any work, with nothing written; a name without a known
+    extension is taken as it is."""
+    doc = document_file(dev_document("bandai2_run_normal_001.bvh"), tmp_path / "run.stag")
+    for argv, name, needle in (
+        (["export-poses"], "poses.c3d", "export-poses writes BVH, but the name says C3D"),
+        (["export-poses"], "poses.stag", "export-poses writes BVH, but the name says a document"),
+        (["plot", "--kind", "timing"], "timing.bvh", "this writes a PNG picture, but the name says BVH"),
+        (["preview"], "strip.stag", "this writes a picture, but the name says a document"),
+    ):
+        out = tmp_path / name
+        r = run([*argv, str(doc), "-o", str(out)])
+        one_line_error(r, 2, name, needle)
+        assert not out.exists()
+    r = run(["plot", "--kind", "timing", str(doc), "-o", str(tmp_path / "timing.img")])
+    assert r.exit_code == 0, r.stderr
+    assert (tmp_path / "timing.img").read_bytes().startswith(b"\x89PNG")
+
+
 @pytest.mark.parametrize("fps, per_frame", [(100, 2), (29.97, 7)])
 def test_c3d_bake_at_a_new_rate_keeps_its_analogs_to_the_end(fps, per_frame):
     src_path = mocap("c3dorg_sample01_Eb015pi_walk.c3d")  # 50 Hz, 16 analog channels at 200 Hz

@@ -376,6 +376,11 @@ def test_output_into_missing_directory_or_onto_a_directory(tmp_path, doc_file):
     assert_one_line_error(result, 2, "does not exist")
     result = run(["copy", str(doc_file), "-o", str(tmp_path), "--force"], group=_copy_group())
     assert_one_line_error(result, 2, "directory")
+    # a file where a folder of the path should be is named as such, not as missing
+    (tmp_path / "walk.stag").write_bytes(b"x")
+    for sub in ("walk.stag/out.stag", "walk.stag/a/out.stag"):
+        result = run(["copy", str(doc_file), "-o", str(tmp_path / sub)], group=_copy_group())
+        assert_one_line_error(result, 2, f"{tmp_path / 'walk.stag'}' is a file, not a directory")
 
 
 class _FakeTerminal:

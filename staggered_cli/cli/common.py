@@ -71,15 +71,27 @@ def _kind_in_name(output: str) -> str | None:
     return None if output == "-" else _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
 
 
-def check_motion_output(kind: str, output: str) -> None:
+def check_motion_output(kind: str, output: str, writer: str | None = None) -> None:
     """Refuse an output name whose extension says another kind than the
     ``kind`` (``'bvh'`` or ``'c3d'``) a bake writes: ``-o walk.c3d`` of a BVH
-    document would otherwise hold BVH text.  Names without a known
+    document would otherwise hold BVH text (``writer``: the command, when it
+    is not a bake of a document of that kind).  Names without a known
     extension (``-``, ``/dev/null``, ``out.txt``) are taken as they are."""
     said = _kind_in_name(output)
     if said is not None and said != kind:
         what = "a document" if said == "document" else said.upper()
-        raise UsageError(f"a {kind.upper()} document bakes to {kind.upper()}, but the name says {what}", source=output)
+        does = f"{writer} writes" if writer else f"a {kind.upper()} document bakes to"
+        raise UsageError(f"{does} {kind.upper()}, but the name says {what}", source=output)
+
+
+def check_picture_output(output: str, what: str) -> None:
+    """Refuse an output name whose extension says a motion file or a
+    document: ``plot -o walk.bvh`` would otherwise write a picture (``what``,
+    e.g. ``'a PNG picture'``) under a motion file's name."""
+    said = _kind_in_name(output)
+    if said is not None:
+        kind = "a document" if said == "document" else said.upper()
+        raise UsageError(f"this writes {what}, but the name says {kind}", source=output)
 
 
 def check_document_output(output: str) -> None:

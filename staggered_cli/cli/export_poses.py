@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .common import check_output, note, read_document, write_motion
+from .common import check_motion_output, check_output, note, read_document, write_motion
 from .options import force_option, input_argument, on_option, output_option
 
 
@@ -24,6 +24,7 @@ def export_poses(input_path, on, output, force):
     from ..ops.pose_file import export_poses as op
     from ..ops.pose_file import frame_note
 
+    check_motion_output("bvh", output, "export-poses")
     check_output(output, force)
     doc = read_document(input_path)
     write_motion(op(doc, on=on), output, force)

@@ -7,7 +7,7 @@ import os
 import click
 
 from ..errors import StaggeredError
-from .common import check_output, name_list, read_document, time_range
+from .common import check_output, check_picture_output, name_list, read_document, time_range
 from .options import emit, force_option, input_argument, output_option
 
 
@@ -40,6 +40,7 @@ def plot(input_path, output, kind, joints, time, dpi, force):
     from .. import plots
     from ..io.files import display_name
 
+    check_picture_output(output, "a PNG picture")
     check_output(output, force)
     window = time_range(time, "--time")
     doc = read_document(input_path)

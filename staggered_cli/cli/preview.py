@@ -8,7 +8,7 @@ import re
 import click
 
 from ..errors import StaggeredError, UsageError
-from .common import check_output
+from .common import check_output, check_picture_output
 from .options import emit, force_option, input_argument, load_input, output_option
 from .plot import title_name
 
@@ -105,6 +105,7 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
     """
     from .. import plots
 
+    check_picture_output(output, "a picture")
     check_output(output, force)
     what, count = parse_at(at)
     gif = fmt == "gif" or (fmt is None and output.lower().endswith(".gif"))

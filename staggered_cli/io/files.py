@@ -180,6 +180,12 @@ def check_output(path: str, force: bool) -> None:
         raise UsageError("output exists (use --force to overwrite it)", source=path)
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
+        above = parent  # the nearest existing folder above, or the file in the way
+        while not os.path.exists(above) and os.path.dirname(above) != above:
+            above = os.path.dirname(above)
+        if os.path.exists(above) and not os.path.isdir(above):
+            shown = os.path.relpath(above) if not os.path.isabs(path) else above
+            raise UsageError(f"{shown!r} is a file, not a directory", source=path)
         raise UsageError(f"output directory {os.path.dirname(path) or parent!r} does not exist", source=path)
 
 
