@@ -167,6 +167,8 @@ HEAD = b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition
             HEAD + b"100000000\nFrame Time: 0.1\n1 2 3\n",
             "declares 100000000 frames but has 1",
         ),
+        (HEAD + b"-5\nFrame Time: 0.1\n1 2 3\n", "line 8: frame count -5 is negative"),
+        (HEAD + b"0\nFrame Time: 0.1\n", "has no motion frames (Frames: 0)"),
     ],
 )
 def test_malformed_input_names_the_file(text, message, tmp_path):

@@ -316,7 +316,9 @@ def _parse_motion(
     problem = frame_time_problem(frame_time)
     if problem is not None:
         raise DataError(f"line {first_line + 3}: frame time {ft_text[:20]} {problem}")
-    if n_frames <= 0:
+    if n_frames < 0:
+        raise DataError(f"line {first_line + 2}: frame count {n_frames} is negative")
+    if n_frames == 0:
         raise DataError("has no motion frames (Frames: 0)")
     if n_channels == 0:
         raise DataError("no joint has CHANNELS")
