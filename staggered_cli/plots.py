@@ -532,7 +532,10 @@ def timing_figure(
     fig.suptitle(_title("timing", doc, name) + span)
     _bands(ax, doc, rows)
     pose_t = doc.pose_t
-    in_win = np.flatnonzero((pose_t >= lo - 1e-9) & (pose_t <= hi + 1e-9))
+    # every pose inside the axes (which reach two frames past the window),
+    # so that a pose just outside it has its line and number with its knots
+    margin = 2 * doc.frame_time
+    in_win = np.flatnonzero((pose_t >= lo - margin - 1e-9) & (pose_t <= hi + margin + 1e-9))
     ax.vlines(pose_t[in_win], -0.5, len(labels) - 0.5, colors="0.75", lw=0.7, zorder=1)
     for c, spans in contacts.items():
         if c in row_of:
@@ -576,7 +579,7 @@ def timing_figure(
 
     _label_rows(ax, labels)
     ax.set_ylim(len(labels) - 0.5, -0.5)
-    ax.set_xlim(lo - 2 * doc.frame_time, hi + 2 * doc.frame_time)
+    ax.set_xlim(lo - margin, hi + margin)
     ax.set_xlabel("time (s)")
     top = ax.secondary_xaxis("top")
     step = max(1, math.ceil(len(in_win) / 40))
