@@ -1,3 +1,63 @@
-"""staggered: editable staggered poses from dense motion capture (Coleman et al., SCA 2008)."""
+"""staggered: editable staggered poses from dense motion capture (Coleman et al., SCA 2008).
+
+The library under the ``staggered`` command::
+
+    import staggered_cli as st
+    clip = st.read("walk.bvh")                  # a BVH or C3D clip, or a document, by content
+    doc = st.extract(clip)                      # staggered poses, refinements, contacts
+    doc = st.cull(doc, keep="30%")
+    doc = st.succession(doc, joint="@left-arm", offset=0.03, power=1.5, clamp=True)
+    st.write(st.bake(doc), "walk_loose.bvh")    # atomic; refuses an existing file unless force=True
+
+One function per command, document first, the command's options as
+keywords.  Values are immutable.  Errors derive from :class:`StaggeredError`
+(:class:`DataError` for bad data, :class:`UsageError` for bad arguments);
+what an edit cannot do as asked is a :class:`StaggeredWarning`.
+"""
+
+from .api import (
+    add_layer,
+    bake,
+    constraints,
+    cull,
+    detail,
+    edit_pose,
+    export_poses,
+    extract,
+    info,
+    new,
+    plot,
+    preview,
+    randomize,
+    read,
+    remove_layer,
+    succession,
+    write,
+)
+from .errors import DataError, StaggeredError, StaggeredWarning, UsageError
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "read",
+    "write",
+    "extract",
+    "cull",
+    "edit_pose",
+    "succession",
+    "randomize",
+    "add_layer",
+    "remove_layer",
+    "detail",
+    "constraints",
+    "new",
+    "export_poses",
+    "bake",
+    "info",
+    "plot",
+    "preview",
+    "StaggeredError",
+    "DataError",
+    "UsageError",
+    "StaggeredWarning",
+]

@@ -41,6 +41,8 @@ class BvhMotion:
     frame_time : float, seconds per frame as written.
     frame_time_text : str, the frame time token as written (kept on output).
     number_format : str, printf format that reproduces the file's numbers.
+    name : str, the base name of the file it was read from (may be empty):
+        :func:`staggered_cli.extract` records it in the document.
     source : bytes, the file it was read from (may be empty): writing keeps
         its layout and the text of every number that did not change
         (:func:`staggered_cli.io.bvh.bvh_bytes`).
@@ -61,6 +63,7 @@ class BvhMotion:
     number_format: str = "%.6f"
     source: bytes = field(default=b"", repr=False, compare=False)
     source_values: np.ndarray | None = field(default=None, repr=False, compare=False)
+    name: str = field(default="", repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:
@@ -203,6 +206,7 @@ class MarkerMotion:
     units : str, e.g. ``'mm'`` (may be empty).
     source : bytes, the original file, so that writing keeps analogs and
         every parameter the user had.
+    name : str, the base name of the file it was read from (may be empty).
     """
 
     labels: tuple[str, ...]
@@ -210,6 +214,7 @@ class MarkerMotion:
     rate: float
     units: str = ""
     source: bytes = field(default=b"", repr=False)
+    name: str = field(default="", repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from staggered_cli import __version__
-from staggered_cli.cli import info as info_module
+from staggered_cli.ops import info as info_ops
 from staggered_cli.cli import options
 from staggered_cli.cli.main import COMMANDS, EXIT_BROKEN_PIPE, EXIT_INTERRUPTED, StaggeredGroup, cli
 from staggered_cli.errors import DataError, StaggeredError, UsageError
@@ -228,7 +228,7 @@ def test_internal_error_is_one_line(monkeypatch, tmp_path):
     def boom(*args, **kwargs):
         raise ZeroDivisionError("oops\nsecond line")
 
-    monkeypatch.setattr(info_module, "summarize", boom)
+    monkeypatch.setattr(info_ops, "summarize", boom)
     result = run(["info", str(path)])
     assert_one_line_error(result, 1, "internal error: ZeroDivisionError: oops second line", "--debug")
     result = CliRunner().invoke(cli, ["--debug", "info", str(path)])
@@ -312,7 +312,7 @@ def _copy_group() -> StaggeredGroup:
     @options.format_option
     def copy(input_path, output, force, fmt):
         options.check_output(output, force)
-        manifest, arrays = options.load_document(input_path)
+        manifest, arrays = parse_document(*options.read_input(input_path))  # the container alone, no schema
         options.emit(output, document_bytes(manifest, arrays, options.document_format(fmt, output)), force)
 
     group = StaggeredGroup(name="staggered")

@@ -30,7 +30,7 @@ from .options import force_option, input_argument, output_option
 @force_option
 def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
     """Write the motion of document FILE as BVH (BVH source) or C3D (C3D source)."""
-    from ..ops.bake import bake as op
+    from ..api import bake as op
 
     check_output(output, force)
     rate = finite(fps, "--fps") if fps is not None else None

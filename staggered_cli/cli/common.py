@@ -15,95 +15,55 @@ from .options import check_output, document_format, emit, load_document
 def read_document(path: str):
     """The :class:`~staggered_cli.document.Document` in ``path`` (``-``: stdin,
     where a batch's previous step may have handed over the Document itself)."""
-    from ..io.document import from_parts
-    from ..io.files import STDIO, display_name
+    from ..io.files import STDIO
 
     if path == STDIO:
         handed = getattr(getattr(sys.stdin, "buffer", None), "document", None)
         if handed is not None:
             return handed
-
-    manifest, arrays = load_document(path)
-    try:
-        return from_parts(manifest, arrays)
-    except StaggeredError as err:
-        raise err.with_source(display_name(path)) from None
+    return load_document(path)
 
 
 def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
     """Serialize ``doc`` and write it atomically (or to stdout; to a batch's
     pipe between two steps, the Document itself is handed over)."""
-    from ..io.document import document_pieces, to_parts
     from ..io.files import STDIO
+    from ..io.formats import pieces
 
     check_document_output(output)
     pipe = getattr(sys.stdout, "buffer", None) if output == STDIO else None
     if hasattr(pipe, "document"):
         pipe.document = doc
         return
-
-    manifest, arrays = to_parts(doc)
-    emit(output, document_pieces(manifest, arrays, document_format(fmt, output)), force)
+    emit(output, pieces(doc, document_format(fmt, output), output), force)
 
 
 def write_motion(motion, output: str, force: bool) -> None:
     """Write a BvhMotion as BVH or a MarkerMotion as C3D."""
-    from ..motion import BvhMotion
+    from ..io.formats import pieces
 
-    if isinstance(motion, BvhMotion):
-        from ..io.bvh import bvh_pieces
-
-        emit(output, bvh_pieces(motion), force)
-    else:
-        from ..io.c3d import c3d_bytes
-
-        emit(output, c3d_bytes(motion), force)
-
-
-#: Output name endings that say what a file holds (compared without case).
-_KIND_OF_EXTENSION = {".bvh": "bvh", ".c3d": "c3d", ".stag": "document", ".npz": "document", ".json": "document"}
-
-
-def _kind_in_name(output: str) -> str | None:
-    """What the output name's extension says it holds (None: ``-`` or no known extension)."""
-    import os
-
-    return None if output == "-" else _KIND_OF_EXTENSION.get(os.path.splitext(output)[1].lower())
+    emit(output, pieces(motion), force)
 
 
 def check_motion_output(kind: str, output: str, writer: str | None = None) -> None:
-    """Refuse an output name whose extension says another kind than the
-    ``kind`` (``'bvh'`` or ``'c3d'``) a bake writes: ``-o walk.c3d`` of a BVH
-    document would otherwise hold BVH text (``writer``: the command, when it
-    is not a bake of a document of that kind).  Names without a known
-    extension (``-``, ``/dev/null``, ``out.txt``) are taken as they are."""
-    said = _kind_in_name(output)
-    if said is not None and said != kind:
-        what = "a document" if said == "document" else said.upper()
-        does = f"{writer} writes" if writer else f"a {kind.upper()} document bakes to"
-        raise UsageError(f"{does} {kind.upper()}, but the name says {what}", source=output)
+    """See :func:`staggered_cli.io.formats.check_motion_name`."""
+    from ..io.formats import check_motion_name
+
+    check_motion_name(kind, output, writer)
 
 
 def check_picture_output(output: str, what: str) -> None:
-    """Refuse an output name whose extension says a motion file or a
-    document: ``plot -o walk.bvh`` would otherwise write a picture (``what``,
-    e.g. ``'a PNG picture'``) under a motion file's name."""
-    said = _kind_in_name(output)
-    if said is not None:
-        kind = "a document" if said == "document" else said.upper()
-        raise UsageError(f"this writes {what}, but the name says {kind}", source=output)
+    """See :func:`staggered_cli.io.formats.check_picture_name`."""
+    from ..io.formats import check_picture_name
+
+    check_picture_name(output, what)
 
 
 def check_document_output(output: str) -> None:
-    """Refuse a document output name that says BVH or C3D: ``extract -o
-    walk.bvh`` would otherwise write a zip under a motion file's name."""
-    said = _kind_in_name(output)
-    if said in ("bvh", "c3d"):
-        raise UsageError(
-            f"this writes a staggered-pose document, but the name says {said.upper()} "
-            "(`bake` writes the motion; name the document .stag)",
-            source=output,
-        )
+    """See :func:`staggered_cli.io.formats.check_document_name`."""
+    from ..io.formats import check_document_name
+
+    check_document_name(output)
 
 
 def finite(value: str, what: str) -> float:

@@ -42,7 +42,8 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
     exactly N of them.  The displacement maps are refitted so that the baked
     motion is unchanged.
     """
-    from ..ops.cull import add_pose, base_motion, choose, keep_count, keep_poses
+    from ..api import check_keep
+    from ..api import cull as op
 
     check_output(output, force)
     times = [finite(t, "--add-time") for t in add_times]
@@ -52,22 +53,8 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
     # what the options say alone is checked before the document is read (a
     # batch checks its steps so, once, before any file)
     if keep is not None:
-        keep_count(keep, 1)
+        check_keep(keep)
     span, chosen = time_range(interval, "--interval"), int_list(select, "--select")
     doc = read_document(input_path)
-    if choosing:
-        motion = base_motion(doc)  # ranking and refitting both read it: evaluated once
-        mask = choose(
-            doc,
-            keep=keep,
-            interval=span,
-            select=chosen,
-            ignore_contacts=ignore_contacts,
-            by=by,
-            motion=motion,
-        )
-        doc = keep_poses(doc, mask, motion)
-        del motion  # as large as the clip's channels: not kept through the write
-    for t in times:
-        doc = add_pose(doc, t)
+    doc = op(doc, keep=keep, interval=span, select=chosen, add_time=times, by=by, ignore_contacts=ignore_contacts)
     write_document(doc, output, fmt, force)

@@ -26,9 +26,8 @@ def detail(input_path, gain, joints, subtree, time, output, force, fmt):
     (jitter, overlap, small secondary motion) is scaled.  Later culls and
     retimes keep the result.
     """
-    from ..ops.edit_pose import joint_mask
+    from ..api import detail as op
     from ..ops.layers import check_gain
-    from ..ops.layers import detail as op
 
     check_output(output, force)
     g = finite(gain, "--gain")
@@ -37,5 +36,4 @@ def detail(input_path, gain, joints, subtree, time, output, force, fmt):
         raise click.UsageError("--subtree needs --joints: it adds the descendants of the joints named there")
     span = time_range(time, "--time")
     doc = read_document(input_path)
-    masks = joint_mask(doc, name_list(joints), subtree) if joints else None
-    write_document(op(doc, g, masks=masks, time_range=span), output, fmt, force)
+    write_document(op(doc, gain=g, joints=name_list(joints), subtree=subtree, time=span), output, fmt, force)

@@ -21,7 +21,7 @@ def export_poses(input_path, on, output, force):
     `edit-pose FILE --from-bvh poses.bvh --all`.
     """
     from ..io.files import display_name
-    from ..ops.pose_file import export_poses as op
+    from ..api import export_poses as op
     from ..ops.pose_file import frame_note
 
     check_motion_output("bvh", output, "export-poses")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
 import click
 
 from .common import check_document_output, check_output, write_document
@@ -20,29 +18,26 @@ def _names(value: str | None) -> list[str] | None:
 
 
 def _read_motion(path: str):
-    """The clip in ``path`` and its bytes; a document is refused."""
-    from ..errors import DataError, StaggeredError, UsageError
-    from .options import detect_kind, read_input
+    """The clip in ``path``; a document is refused."""
+    from ..document import Document
+    from ..errors import UsageError
+    from ..io.files import display_name
+    from ..io.formats import read
+    from ..ops.extract import MAX_EXTRACT_VALUES
+
+    # a BVH too large to extract is refused from its header, before its values are parsed
+    motion = read_motion(path, MAX_EXTRACT_VALUES)
+    if isinstance(motion, Document):
+        raise UsageError("is already a staggered-poses document: extract reads BVH or C3D", source=display_name(path))
+    return motion
+
+
+def read_motion(path: str, max_bvh_values: int | None = None):
+    """What ``path`` holds, with a BVH refused beyond ``max_bvh_values``."""
+    from ..io.formats import parse, read_input
 
     data, name = read_input(path)
-    try:
-        kind = detect_kind(data)
-    except ValueError as err:
-        raise DataError(str(err), source=name) from None
-    if kind == "document":
-        raise UsageError("is already a staggered-poses document: extract reads BVH or C3D", source=name)
-    try:
-        if kind == "c3d":
-            from ..io.c3d import read_c3d
-
-            return read_c3d(path, data=data, name=name), data
-        from ..io.bvh import read_bvh
-        from ..ops.extract import MAX_EXTRACT_VALUES
-
-        # refused from its header, before its values are parsed
-        return read_bvh(path, data=data, name=name, max_values=MAX_EXTRACT_VALUES), data
-    except StaggeredError as err:
-        raise err.with_source(name) from None
+    return parse(data, name, max_bvh_values=max_bvh_values, path=path)
 
 
 @click.command("extract")
@@ -124,16 +119,13 @@ def extract(
     Writes a staggered-pose document (NPZ, or JSON with --format json or an
     output name ending in .json).
     """
-    from ..ops.extract import extract as run_extract
+    from ..api import extract as run_extract
 
     check_output(output, force)
     check_document_output(output)  # before the work, not after it
-    motion, data = _read_motion(input_path)
-    name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
+    motion = _read_motion(input_path)
     doc = run_extract(
         motion,
-        source_name=name,
-        source_bytes=data,
         contact_joints=_names(contact_joints),
         smoothing=smoothing,
         filter_width=filter_width,

@@ -8,96 +8,10 @@ from typing import Any
 
 import click
 
-from ..errors import StaggeredError
 from .options import input_argument, load_input
 
 #: Keys shown first in the table, in this order; the rest follow sorted.
 _FIRST = ("file", "kind", "frames", "frame_time", "rate", "duration")
-_DIGITS = 6  # rounding of derived floats, so that golden files do not hang on the last bit
-
-
-def _r(x: float) -> float:
-    return round(float(x), _DIGITS)
-
-
-def bvh_summary(motion) -> dict[str, Any]:
-    """Summary of a :class:`~staggered_cli.motion.BvhMotion` (times in seconds,
-    lengths in file units)."""
-    sk = motion.skeleton
-    orders: dict[str, int] = {}
-    for j in range(sk.n_joints):
-        order = sk.rotation_order(j)
-        if order:
-            orders[order] = orders.get(order, 0) + 1
-    return {
-        "kind": "bvh",
-        "frames": motion.n_frames,
-        "frame_time": motion.frame_time,
-        "frame_time_text": motion.frame_time_text or repr(motion.frame_time),
-        "rate": _r(motion.rate),
-        "duration": _r(motion.n_frames * motion.frame_time),
-        "joints": sk.n_joints,
-        "joint_names": list(sk.names),
-        "end_sites": len(sk.end_parents),
-        "channels": int(motion.channels.shape[1]),
-        "joints_with_position": sum(1 for j in range(sk.n_joints) if sk.has_position(j)),
-        "euler_orders": dict(sorted(orders.items())),
-        "figure_height": _r(motion.figure_height()),
-    }
-
-
-def c3d_summary(motion) -> dict[str, Any]:
-    """Summary of a :class:`~staggered_cli.motion.MarkerMotion` (times in
-    seconds, lengths in file units, ``gap_fraction`` of missing samples)."""
-    import numpy as np
-
-    pts = motion.points
-    missing = ~np.all(np.isfinite(pts), axis=-1)  # (T, M): a marker sample is missing
-    return {
-        "kind": "c3d",
-        "frames": motion.n_frames,
-        "frame_time": _r(motion.frame_time),
-        "rate": _r(motion.rate),
-        "duration": _r(motion.n_frames * motion.frame_time),
-        "markers": len(motion.labels),
-        "marker_labels": list(motion.labels),
-        "units": motion.units,
-        "gap_fraction": _r(missing.mean()) if missing.size else 0.0,
-        "markers_with_gaps": int(np.count_nonzero(missing.any(axis=0))),
-        "figure_size": _r(motion.figure_height()),
-    }
-
-
-def document_info(manifest: dict, arrays: dict) -> dict[str, Any]:
-    """Summary of a document, from the representation's hook.
-
-    Hook: ``staggered_cli.document.document_summary(staggered_cli.io.document.from_parts(manifest, arrays)) -> dict``
-    (JSON-able; includes ``frames`` and ``frame_time``).
-    """
-    from staggered_cli.document import document_summary
-    from staggered_cli.io.document import from_parts
-
-    return {"kind": "document", **document_summary(from_parts(manifest, arrays))}
-
-
-def summarize(obj, name: str, source: str | None = None) -> dict[str, Any]:
-    """The summary dict of what :func:`~.options.load_input` returned.
-
-    ``name`` is the ``file`` entry; errors name ``source`` (default ``name``),
-    the path as given, like every other message about the file."""
-    from ..motion import BvhMotion, MarkerMotion
-
-    if isinstance(obj, BvhMotion):
-        summary = bvh_summary(obj)
-    elif isinstance(obj, MarkerMotion):
-        summary = c3d_summary(obj)
-    else:
-        try:
-            summary = document_info(*obj)
-        except StaggeredError as err:
-            err.with_source(source or name)
-            raise
-    return {"file": name, **summary}
 
 
 def _cell(value: Any) -> str:
@@ -168,9 +82,11 @@ def info(input_path: str, as_json: bool) -> None:
     Frames, frame time, rate, duration; joints or markers; figure size in
     file units; for a document its poses and constraints.
     """
-    obj = load_input(input_path)
+    from ..api import info as summarize
+
+    value = load_input(input_path)
     name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
-    summary = summarize(obj, name, "<stdin>" if input_path == "-" else input_path)
+    summary = {**summarize(value), "file": name}
     if as_json:
         text = json.dumps(_json_safe(summary), sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False)
         click.echo(text)

@@ -48,17 +48,17 @@ def layer(input_path, add, keep, times, remove, list_, output, force, fmt):
     if list_:
         click.echo(_table(doc, ops.layer_rows(doc)))
         return
-    if remove is not None:
-        doc = ops.remove_layer(doc, remove)
-    elif keep is not None:
-        from ..ops.cull import choose
+    from .. import api
 
-        doc = ops.add_layer(doc, doc.pose_t[choose(doc, keep=keep)])
+    if remove is not None:
+        doc = api.remove_layer(doc, remove)
+    elif keep is not None:
+        doc = api.add_layer(doc, keep=keep)
     else:
         values = [v.strip() for v in times.split(",") if v.strip()]
         if not values:
             raise click.BadParameter("give at least one time", param_hint="--times")
-        doc = ops.add_layer(doc, ops.layer_times(doc, [finite(v, "--times") for v in values]))
+        doc = api.add_layer(doc, times=[finite(v, "--times") for v in values])
     write_document(doc, output, fmt, force)
 
 

@@ -166,7 +166,7 @@ class StaggeredGroup(LazyGroup):
         except KeyboardInterrupt as err:  # before or after a command ran
             sys.exit(_interrupted(err))
         except StdoutClosed as err:  # while writing help
-            click.echo(f"{PROG}: {_one_line(str(err))}", err=True)
+            click.echo(f"{PROG}: {_one_line(err.cli_message())}", err=True)
             sys.exit(err.exit_code)
         sys.exit(rv if isinstance(rv, int) else 0)
 
@@ -195,7 +195,7 @@ class StaggeredGroup(LazyGroup):
                 from ..io.files import display_name
 
                 err.with_source(display_name(ctx.meta[INPUT_KEY]))  # the file the problem is about
-            click.echo(f"{PROG}: {_one_line(str(err))}", err=True)
+            click.echo(f"{PROG}: {_one_line(err.cli_message())}", err=True)
             ctx.exit(err.exit_code)
         except KeyboardInterrupt as err:
             ctx.exit(_interrupted(err))

@@ -35,22 +35,22 @@ def new(input_path, times, output, force, fmt):
     Cubic splines pass through the keys with smooth blocking tangents; the
     displacement maps are empty.  The motion runs at FILE's frame time.
     """
-    import numpy as np
-
+    from ..api import new as op
+    from ..document import Document
     from ..errors import UsageError
-    from ..ops.pose_file import new_document
-    from .extract import _read_motion
+    from ..motion import BvhMotion
+    from .extract import read_motion
 
     check_output(output, force)
     t = _times(times)
-    motion, data = _read_motion(input_path)
-    from ..motion import BvhMotion
-
+    motion = read_motion(input_path)
     name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
+    if isinstance(motion, Document):
+        raise UsageError("is already a staggered-poses document: new reads key poses from a BVH", source=name)
     if not isinstance(motion, BvhMotion):
         raise UsageError("new reads key poses from a BVH (this is a C3D)", source=name)
     try:
-        doc = new_document(motion, None if t is None else np.array(t), source_name=name, source_bytes=data)
+        doc = op(motion, times=t)
     except UsageError as err:
         raise err.with_source(name) from None
     write_document(doc, output, fmt, force)

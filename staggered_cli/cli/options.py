@@ -30,15 +30,10 @@ from ..errors import DataError, StaggeredError, UsageError
 from ..io import files
 
 if TYPE_CHECKING:
-    import numpy as np
-
+    from ..document import Document
     from ..motion import BvhMotion, MarkerMotion
 
-    Document = tuple[dict[str, Any], dict[str, np.ndarray]]
-
 STDIO = files.STDIO
-
-_BOM = b"\xef\xbb\xbf"
 
 #: Where the command's input is remembered, so that the one error path can
 #: name it in any error that does not name a file itself.
@@ -100,105 +95,42 @@ def on_option(verb: str):
 def document_format(fmt: str | None, output: str) -> str:
     """The document format to write: ``fmt`` if given, else ``json`` for an
     output ending in ``.json`` and ``npz`` for anything else (stdout included)."""
-    if fmt is not None:
-        return fmt
-    return "json" if output != STDIO and output.lower().endswith(".json") else "npz"
+    from ..io.formats import document_format as choose
+
+    return choose(fmt, output)
 
 
 def detect_kind(data: bytes) -> str:
-    """``'document'``, ``'c3d'`` or ``'bvh'`` from the content of a file.
+    """``'document'``, ``'c3d'`` or ``'bvh'`` from a file's content (see
+    :func:`staggered_cli.io.formats.detect_kind`)."""
+    from ..io.formats import detect_kind as detect
 
-    Extensions are not looked at (SPEC section 1).  Raises ``ValueError`` for
-    anything else; :func:`load_input` turns that into a ``DataError``.
-    """
-    from ..io.document import is_document
-
-    if is_document(data):
-        return "document"
-    if len(data) >= 2 and data[1] == 0x50:  # C3D header: parameter-section key 0x50 at byte 1
-        return "c3d"
-    text = data[3:64] if data.startswith(_BOM) else data[:64]
-    if text.lstrip(b" \t\r\n").upper().startswith(b"HIERARCHY"):
-        return "bvh"
-    if not data:
-        raise ValueError("empty file")
-    if data.startswith((b"\xff\xfe", b"\xfe\xff", b"\x00\x00\xfe\xff")) or b"\x00" in data[:2]:
-        for enc in ("utf-32", "utf-16", "utf-16-le", "utf-16-be"):
-            try:
-                head = data[:256].decode(enc, errors="ignore").lstrip("\ufeff \t\r\n")
-            except UnicodeError:
-                continue
-            if head.upper().startswith(("HIERARCHY", "{")):
-                raise ValueError(f"is {enc.upper()[:6]} text: save it as UTF-8 (BVH and JSON are read as UTF-8)")
-    raise ValueError("not a BVH, C3D or staggered-poses document (unrecognized content)")
-
-
-def _refuse_early(head: bytes) -> None:
-    """Probe of :func:`read_input` on the first bytes of a large input."""
-    try:
-        kind = detect_kind(head)
-    except ValueError as err:
-        raise DataError(str(err)) from None
-    if kind == "bvh":
-        from ..io.bvh import check_header
-
-        check_header(head)
+    return detect(data)
 
 
 def read_input(path: str) -> tuple[bytes, str]:
-    """The bytes of ``path`` (``-``: stdin) and its display name; an input
-    that is not a BVH, C3D or document, or a BVH whose header is too long,
-    is refused after its first 16 MiB without reading the rest."""
-    from ..io.bvh import MAX_HEADER_BYTES
+    """The bytes of ``path`` (``-``: stdin) and its display name (see
+    :func:`staggered_cli.io.formats.read_input`)."""
+    from ..io.formats import read_input as read
 
-    return files.read_bytes(path, probe=_refuse_early, probe_bytes=MAX_HEADER_BYTES + 64)
+    return read(path)
 
 
 def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
-    """Read ``path`` (``-`` for stdin) and parse it by content.
+    """Read ``path`` (``-`` for stdin) and parse it by content: a
+    BvhMotion, a MarkerMotion or a Document.  Errors name the file."""
+    from ..io.formats import read
 
-    Returns a :class:`~staggered_cli.motion.BvhMotion`, a
-    :class:`~staggered_cli.motion.MarkerMotion`, or a document as
-    ``(manifest, arrays)``.  Errors are ``DataError`` naming the file.
-    """
-    zipped = files.open_zip(path)
-    if zipped is not None:  # an NPZ document, read from the file: no copy of it in memory
-        from ..io.document import parse_document
-
-        name = files.display_name(path)
-        with zipped:
-            try:
-                return parse_document(zipped, name)
-            except StaggeredError as err:
-                err.with_source(name)
-                raise
-    data, name = read_input(path)
-    try:
-        kind = detect_kind(data)
-    except ValueError as err:
-        raise DataError(str(err), source=name) from None
-    try:
-        if kind == "document":
-            from ..io.document import parse_document
-
-            return parse_document(data, name)
-        if kind == "c3d":
-            from ..io.c3d import read_c3d
-
-            return read_c3d(path, data=data, name=name)
-        from ..io.bvh import read_bvh
-
-        return read_bvh(path, data=data, name=name)
-    except StaggeredError as err:
-        err.with_source(name)
-        raise
+    return read(path)
 
 
 def load_document(path: str) -> Document:
     """Like :func:`load_input` but insists on a document: a BVH or C3D given
     where a document is needed is a ``UsageError`` that says what to run."""
+    from ..document import Document
+
     obj = load_input(path)
-    if isinstance(obj, tuple):
+    if isinstance(obj, Document):
         return obj
     raise UsageError(
         "is motion capture, not a staggered-poses document: run `staggered extract` on it first",

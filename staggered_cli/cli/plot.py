@@ -38,6 +38,7 @@ def plot(input_path, output, kind, joints, time, dpi, force):
     in seconds, angles in degrees; see the README's Pictures section.
     """
     from .. import plots
+    from ..api import plot as op
     from ..io.files import display_name
 
     check_picture_output(output, "a PNG picture")
@@ -45,7 +46,7 @@ def plot(input_path, output, kind, joints, time, dpi, force):
     window = time_range(time, "--time")
     doc = read_document(input_path)
     try:
-        fig = plots.plot_figure(doc, kind, name=title_name(input_path), joints=name_list(joints), time=window)
+        fig = op(doc, kind=kind, name=title_name(input_path), joints=name_list(joints), time=window)
     except StaggeredError as err:
         raise err.with_source(display_name(input_path)) from None
     emit(output, plots.png_bytes(fig, dpi), force)

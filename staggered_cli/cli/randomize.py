@@ -4,7 +4,16 @@ from __future__ import annotations
 
 import click
 
-from .common import check_output, finite, name_list, pose_mask, read_document, timing_options, write_document
+from .common import (
+    check_output,
+    finite,
+    int_list,
+    name_list,
+    read_document,
+    time_range,
+    timing_options,
+    write_document,
+)
 from .options import force_option, format_option, input_argument, output_option
 
 
@@ -20,7 +29,7 @@ from .options import force_option, format_option, input_argument, output_option
 @format_option
 def randomize(input_path, tau, seed, joints, subtree, poses, time, clamp, output, force, fmt):
     """Add random offsets to the refinements of FILE's poses."""
-    from ..ops.timing import randomize as op
+    from ..api import randomize as op
 
     check_output(output, force)
     t = finite(tau, "--tau")
@@ -31,5 +40,14 @@ def randomize(input_path, tau, seed, joints, subtree, poses, time, clamp, output
     if seed < 0:
         raise click.BadParameter(f"must not be negative, got {seed}", param_hint="--seed")
     doc = read_document(input_path)
-    doc = op(doc, t, seed, joints=name_list(joints), subtree=subtree, poses=pose_mask(doc, poses, time), clamp=clamp)
+    doc = op(
+        doc,
+        tau=t,
+        seed=seed,
+        joints=name_list(joints),
+        subtree=subtree,
+        poses=int_list(poses, "--poses"),
+        time=time_range(time, "--time"),
+        clamp=clamp,
+    )
     write_document(doc, output, fmt, force)

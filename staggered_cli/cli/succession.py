@@ -4,7 +4,16 @@ from __future__ import annotations
 
 import click
 
-from .common import check_output, finite, name_list, pose_mask, read_document, timing_options, write_document
+from .common import (
+    check_output,
+    finite,
+    int_list,
+    name_list,
+    read_document,
+    time_range,
+    timing_options,
+    write_document,
+)
 from .options import force_option, format_option, input_argument, output_option
 
 
@@ -31,7 +40,7 @@ from .options import force_option, format_option, input_argument, output_option
 @format_option
 def succession(input_path, joint, chain, offset, power, poses, time, clamp, output, force, fmt):
     """Stagger the timing of FILE's poses down a limb: r[k,i] += S * d(i)**L."""
-    from ..ops.timing import succession as op
+    from ..api import succession as op
 
     check_output(output, force)
     s = finite(offset, "--offset")
@@ -41,5 +50,6 @@ def succession(input_path, joint, chain, offset, power, poses, time, clamp, outp
     if (joint is None) == (chain is None):
         raise click.UsageError("give exactly one of --joint and --chain")
     doc = read_document(input_path)
-    doc = op(doc, s, p, joint=joint, chain=name_list(chain), poses=pose_mask(doc, poses, time), clamp=clamp)
+    doc = op(doc, offset=s, power=p, joint=joint, chain=name_list(chain), poses=int_list(poses, "--poses"),
+             time=time_range(time, "--time"), clamp=clamp)
     write_document(doc, output, fmt, force)

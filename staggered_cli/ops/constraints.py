@@ -61,3 +61,44 @@ def retimed(doc: Document, found: Constraint) -> Constraint:
             (s0, s1), (t0, t1) = c.source_span, (c.start, c.end)
             pairs += [(s0, t0), (s1, t1)]
     return found.warped(*from_pairs(pairs))
+
+
+def edit_constraints(
+    doc: Document,
+    *,
+    add: list[tuple[str, float, float]] = (),  # type: ignore[assignment]
+    remove: list[int] = (),  # type: ignore[assignment]
+    detect: bool = False,
+    contact_joints: list[str] | None = None,
+    min_contact: float | None = None,
+    contact_tolerance: float | None = None,
+) -> Document:
+    """The document with its constraints re-detected (``detect``), then
+    ``remove`` (indices as listed) dropped, then ``add`` (joint, start, end)
+    planted by the user; sorted by start time."""
+    from dataclasses import replace
+
+    from ..errors import arg
+    from .extract import MAX_MIN_CONTACT
+
+    if min_contact is not None and not 0 <= min_contact <= MAX_MIN_CONTACT:
+        raise UsageError(f"{arg('min_contact')} must be from 0 to {MAX_MIN_CONTACT:g} s, got {min_contact:g}")
+    cons = tuple(doc.constraints)
+    if detect:
+        cons = redetect(doc, contact_joints, min_contact, contact_tolerance)
+    if remove:
+        n = len(cons)
+        bad = [k for k in remove if not -n <= k < n]
+        if bad:
+            raise UsageError(
+                f"no constraint {bad[0]} (the document has {n}: 0 to {n - 1})" if n else "the document has no constraints"
+            )
+        drop = {k % n for k in remove}
+        if len(drop) < len(remove):
+            twice = next(k for i, k in enumerate(remove) if k % n in {j % n for j in remove[:i]})
+            raise UsageError(f"{arg('remove')} {twice}: constraint {twice % n} is named more than once")
+        cons = tuple(c for i, c in enumerate(cons) if i not in drop)
+    for joint, start, end in add:
+        joint, start, end = checked_span(doc, joint, start, end)
+        cons = cons + (Constraint(joint, start, end, pin=True),)  # the user says it is planted
+    return replace(doc, constraints=tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint))))

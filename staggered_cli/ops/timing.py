@@ -384,7 +384,7 @@ def retime_pose(doc: Document, k: int, new_time: float) -> Document:
         try:
             tracks.append(with_knot_times(tr, kt, frame_time=doc.frame_time))
         except KnotOrderError as exc:
-            raise KnotOrderError(f"moving pose {k} to {doc.seconds(new_time)}: {exc}") from None
+            raise KnotOrderError(f"moving pose {k} to {doc.seconds(new_time)}: {exc.message}") from None
     pose_t = doc.pose_t.copy()
     pose_t[k] = new_time
     constraints = tuple(c.warped(doc.pose_t, pose_t) for c in doc.constraints)

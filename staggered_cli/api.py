@@ -1,0 +1,979 @@
+"""The public API: ``import staggered_cli as st``.
+
+One function per command, document first; keywords are the command's
+options with underscores, in the same units (seconds, degrees, file units).
+Documents and motions are immutable values: each function returns a new one
+and never changes its argument.  Errors are :class:`~staggered_cli.errors.StaggeredError`
+(``DataError`` for bad data, ``UsageError`` for bad arguments); what an edit
+cannot do as asked is a :class:`~staggered_cli.errors.StaggeredWarning`.
+
+Nothing heavy is imported here: each function imports what it runs.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, BinaryIO, Union
+
+from .errors import UsageError, arg
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from .document import Document
+    from .motion import BvhMotion, MarkerMotion
+
+    Motion = Union[BvhMotion, MarkerMotion]
+
+Triple = tuple[float, float, float]
+Span = tuple[float, float]
+
+
+def _number(value: Any, name: str) -> float:
+    """``value`` as a finite float, or a UsageError naming ``name``."""
+    import math
+
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise UsageError(f"{arg(name)} must be a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise UsageError(f"{arg(name)} must be a finite number, got {value!r}")
+    return x
+
+
+def _names(value: str | Sequence[str] | None, name: str) -> list[str] | None:
+    """Joint or marker names: a list, or a comma-separated string."""
+    if value is None:
+        return None
+    items = value.split(",") if isinstance(value, str) else list(value)
+    out = [str(x).strip() for x in items if str(x).strip()]
+    if not out:
+        raise UsageError(f"{arg(name)} names no joint or marker")
+    return out
+
+
+def _span(value: Span | None, name: str) -> Span | None:
+    """``(A, B)`` seconds; None for either side is the clip's end."""
+    import math
+
+    if value is None:
+        return None
+    try:
+        a, b = value
+    except (TypeError, ValueError):
+        raise UsageError(f"{arg(name)} must be a pair (A, B) of seconds, got {value!r}") from None
+    lo = -math.inf if a is None else _number(a, name)
+    hi = math.inf if b is None else _number(b, name)
+    if lo > hi:
+        raise UsageError(f"{arg(name)}: A must not exceed B, got ({lo:g}, {hi:g})")
+    return lo, hi
+
+
+def _triples(value: Mapping[str, Triple] | None, name: str) -> dict[str, Triple]:
+    out: dict[str, Triple] = {}
+    for joint, xyz in (value or {}).items():
+        try:
+            x, y, z = xyz
+        except (TypeError, ValueError):
+            raise UsageError(f"{arg(name)} {joint}: expected three numbers (x, y, z), got {xyz!r}") from None
+        out[str(joint)] = (_number(x, name), _number(y, name), _number(z, name))
+    return out
+
+
+def _document(doc: Any, name: str = "doc") -> Document:
+    from .document import Document
+
+    if not isinstance(doc, Document):
+        what = type(doc).__name__
+        hint = ": run st.extract on it first" if what in ("BvhMotion", "MarkerMotion") else ""
+        raise UsageError(f"{arg(name)} must be a staggered-pose Document, got {what}{hint}")
+    return doc
+
+
+def _pose_mask(doc: Document, poses: Sequence[int] | None, time: Span | None):
+    from .ops.timing import select_poses
+
+    chosen = None if poses is None else [int(k) for k in poses]
+    if chosen is not None and not chosen:
+        raise UsageError(f"{arg('poses')} names no pose")
+    return select_poses(doc, chosen, _span(time, "time"))
+
+
+# --------------------------------------------------------------------------- files
+
+
+def read(source: str | os.PathLike | bytes | BinaryIO) -> Motion | Document:
+    """Read a BVH, a C3D or a staggered-pose document, told apart by content.
+
+    Parameters
+    ----------
+    source : str, path-like, bytes or binary file object
+        A path (``"-"`` is standard input), the file's bytes, or a file
+        opened in binary mode.
+
+    Returns
+    -------
+    BvhMotion, MarkerMotion or Document
+        A BVH clip (channels as written, degrees and file units), a C3D
+        clip (points ``(T, M, 3)`` in file units, NaN in gaps) or a document.
+
+    Raises
+    ------
+    DataError
+        A missing, malformed or truncated file; the message names it.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> clip = st.read("data/samples/march.bvh")
+    >>> clip.n_frames, round(clip.frame_time, 4)
+    (121, 0.0333)
+    """
+    from .io.formats import read as io_read
+
+    return io_read(source)
+
+
+def write(
+    value: Document | Motion, dest: str | os.PathLike | BinaryIO, *, format: str | None = None, force: bool = False
+) -> None:
+    """Write a document (NPZ or JSON), a BVH motion or a C3D motion.
+
+    Parameters
+    ----------
+    value : Document, BvhMotion or MarkerMotion
+    dest : str, path-like or binary file object
+        A path (``"-"`` is standard output) or a file opened for binary
+        writing.  A path is written atomically: complete, or not there.
+    format : {"npz", "json"}, optional
+        For a document: the default is JSON when ``dest`` ends in ``.json``,
+        else NPZ.
+    force : bool
+        Replace an existing file (refused otherwise).
+
+    Raises
+    ------
+    UsageError
+        ``dest`` exists without ``force``; its name says another kind (a
+        document named ``.bvh``, a BVH named ``.c3d``).
+
+    Examples
+    --------
+    >>> import io
+    >>> import staggered_cli as st
+    >>> buffer = io.BytesIO()
+    >>> st.write(st.read("data/samples/march.bvh"), buffer)
+    >>> buffer.getvalue() == open("data/samples/march.bvh", "rb").read()
+    True
+    """
+    from .io.formats import write as io_write
+
+    io_write(value, dest, format=format, force=force)
+
+
+# --------------------------------------------------------------------------- extract
+
+
+def extract(
+    motion: Motion,
+    *,
+    contact_joints: str | Sequence[str] | None = None,
+    smoothing: float | None = None,
+    filter_width: float = 0.15,
+    refine_window: float = 0.25,
+    min_contact: float = 0.1,
+    contact_tolerance: float = 0.03,
+    significance: float = 0.5,
+    min_spacing: float = 0.1,
+) -> Document:
+    """Find the staggered poses, refinements, contacts, splines and
+    displacement maps of a dense clip (the paper's section 4).
+
+    Parameters
+    ----------
+    motion : BvhMotion or MarkerMotion
+        What :func:`read` returned for a BVH or C3D file.
+    contact_joints : str or list of str, optional
+        Joints (BVH) or marker labels (C3D) to find contacts on; default the
+        feet and toes, or the lowest markers.  ``@left-leg`` style parts work.
+    smoothing : float, optional
+        Laplacian smoothing of the curvature signals, seconds (0.025).
+    filter_width : float
+        Tent filter full base width of the pose probability, seconds.
+    refine_window : float
+        Largest timing refinement, seconds.
+    min_contact : float
+        Shortest contact, seconds.
+    contact_tolerance : float
+        How still a planted joint stays, a fraction of the figure height.
+    significance : float
+        Motion a pose needs, in figure heights per second summed over the
+        body (0 keeps every local maximum).
+    min_spacing : float
+        Fewest seconds between two poses.
+
+    Returns
+    -------
+    Document
+        Baking it gives the clip back exactly.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> doc.n_poses, len(doc.constraints)
+    (24, 8)
+    >>> st.write(st.bake(doc), "out/doctest/march.bvh", force=True)
+    >>> open("out/doctest/march.bvh", "rb").read() == open("data/samples/march.bvh", "rb").read()
+    True
+    """
+    from .motion import BvhMotion, MarkerMotion
+    from .ops.extract import MAX_EXTRACT_VALUES
+    from .ops.extract import extract as op
+
+    if not isinstance(motion, BvhMotion | MarkerMotion):
+        what = type(motion).__name__
+        hint = ": it is already a document" if what == "Document" else ""
+        raise UsageError(f"{arg('motion')} must be a BVH or C3D clip (st.read), got {what}{hint}")
+    if isinstance(motion, BvhMotion) and motion.channels.size > MAX_EXTRACT_VALUES:
+        raise UsageError(
+            f"{arg('motion')} has {motion.channels.size:,} channel values, more than extract's "
+            f"limit of {MAX_EXTRACT_VALUES:,}: split the clip"
+        )
+    return op(
+        motion,
+        source_name=motion.name,
+        source_bytes=motion.source or None,
+        contact_joints=_names(contact_joints, "contact_joints"),
+        smoothing=smoothing,
+        filter_width=filter_width,
+        refine_window=refine_window,
+        min_contact=min_contact,
+        contact_tolerance=contact_tolerance,
+        significance=significance,
+        min_spacing=min_spacing,
+    )
+
+
+# --------------------------------------------------------------------------- poses
+
+
+def check_keep(keep: str | int) -> None:
+    """Refuse a ``keep`` that is neither a count nor a percentage (before
+    any document is read: a batch checks its steps so)."""
+    from .ops.cull import keep_count
+
+    keep_count(str(keep), 1)
+
+
+def cull(
+    doc: Document,
+    *,
+    keep: str | int | None = None,
+    interval: Span | None = None,
+    select: Sequence[int] | None = None,
+    add_time: float | Sequence[float] = (),
+    by: str = "error",
+    ignore_contacts: bool = False,
+) -> Document:
+    """Keep fewer poses (first and last always); the baked motion does not change.
+
+    Parameters
+    ----------
+    doc : Document
+    keep : int or str, optional
+        Keep exactly N poses (``12``) or a share of them (``"30%"``), ranked
+        ``by``; within ``interval`` or ``select`` when given.
+    interval : (float, float), optional
+        Keep the poses between A and B seconds.
+    select : list of int, optional
+        Keep these pose indices.
+    add_time : float or list of float
+        Add an unrefined pose at each of these times, seconds.
+    by : {"error", "paper"}
+        ``"error"``: the N poses whose spline layer fits best; ``"paper"``:
+        the paper's priority.
+    ignore_contacts : bool
+        Rank every pose alike (by default poses on contact changes go last).
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> st.cull(doc, keep="50%").n_poses
+    12
+    >>> st.cull(doc, keep=4, add_time=1.5).n_poses
+    5
+    """
+    from .ops.cull import add_pose, base_motion, choose, keep_poses
+
+    doc = _document(doc)
+    times = [add_time] if isinstance(add_time, int | float) else list(add_time)
+    times = [_number(t, "add_time") for t in times]
+    choosing = keep is not None or interval is not None or select is not None
+    if not choosing and not times:
+        raise UsageError(
+            f"say what to keep: {arg('keep')}, {arg('interval')}, {arg('select')}, or {arg('add_time')}"
+        )
+    if keep is not None:
+        check_keep(keep)
+    span = _span(interval, "interval")
+    chosen = None if select is None else [int(k) for k in select]
+    if chosen is not None and not chosen:
+        raise UsageError(f"{arg('select')} names no pose")
+    if choosing:
+        motion = base_motion(doc)  # ranking and refitting both read it: evaluated once
+        mask = choose(
+            doc,
+            keep=None if keep is None else str(keep),
+            interval=span,
+            select=chosen,
+            ignore_contacts=ignore_contacts,
+            by=by,
+            motion=motion,
+        )
+        doc = keep_poses(doc, mask, motion)
+        del motion
+    for t in times:
+        doc = add_pose(doc, t)
+    return doc
+
+
+def edit_pose(
+    doc: Document,
+    pose: int | None = None,
+    *,
+    layer: int = 0,
+    on: str = "true",
+    rotate: Mapping[str, Triple] | None = None,
+    translate: Mapping[str, Triple] | None = None,
+    exaggerate: float | None = None,
+    relative_to: str | int = "average",
+    ease: float | None = None,
+    joints: str | Sequence[str] | None = None,
+    subtree: bool = False,
+    from_bvh: str | os.PathLike | BvhMotion | None = None,
+    frame: int | None = None,
+    root: bool = False,
+    all: bool = False,
+    time: float | None = None,
+    shift: float | None = None,
+) -> Document:
+    """Edit one pose; the motion changes only between its neighbouring knots
+    and the capture's detail rides along (the paper's section 5.1).
+
+    Parameters
+    ----------
+    doc : Document
+    pose : int
+        Pose index (negative counts from the end), of ``layer``.
+    layer : int
+        0 edits the staggered poses; L >= 1 a layer added with :func:`add_layer`.
+    on : {"true", "extreme"}
+        Edit the true pose at t_k, or the non-staggered pose (extreme values).
+    rotate : dict of str to (rx, ry, rz), optional
+        Degrees about each joint's local axes (XYZ order).
+    translate : dict of str to (x, y, z), optional
+        File units, for joints with position channels or markers.
+    exaggerate : float, optional
+        Scale the pose's difference from ``relative_to`` by W (1 unchanged).
+    relative_to : {"prev", "next", "average"} or int
+        The reference pose of ``exaggerate``.
+    ease : float, optional
+        Scale the inner spline controls on both sides (0 linear, >1 hold).
+    joints, subtree : optional
+        Restrict ``exaggerate``, ``from_bvh`` and ``ease`` to these joints
+        (and their descendants).
+    from_bvh : path or BvhMotion, optional
+        Set the pose from ``frame`` of a BVH with the same skeleton; with
+        ``all=True`` frame k sets pose k for every pose.
+    root : bool
+        Take the root's place and heading from ``from_bvh`` too, or
+        exaggerate them too (kept by default).
+    time, shift : float, optional
+        Move the pose to ``time`` seconds, or by ``shift`` seconds.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> edited = st.edit_pose(doc, 3, rotate={"LeftArm": (0, 0, 20)})
+    >>> changed = st.bake(edited).channels != st.bake(doc).channels
+    >>> bool(changed.any()), bool(changed[0].any())
+    (True, False)
+    """
+    from .document import check_pose_index
+    from .ops import edit_pose as ops
+    from .ops.layers import check_ease
+    from .ops.layers import ease as ease_op
+
+    doc = _document(doc)
+    rot = _triples(rotate, "rotate")
+    tra = _triples(translate, "translate")
+    w = None if exaggerate is None else _number(exaggerate, "exaggerate")
+    x = None if ease is None else _number(ease, "ease")
+    if w is not None:
+        ops.check_exaggerate(w)
+    if x is not None:
+        check_ease(x)
+    if time is not None and shift is not None:
+        raise UsageError(f"give {arg('time')} or {arg('shift')}, not both")
+    names = _names(joints, "joints")
+    if subtree and not names:
+        raise UsageError(f"{arg('subtree')} needs {arg('joints')}: it adds the descendants of the joints named there")
+    if all:
+        if from_bvh is None or pose is not None or frame is not None:
+            raise UsageError(f"{arg('all')} needs {arg('from_bvh')}, and no {arg('pose')} or {arg('frame')}")
+        if rot or tra or w is not None or x is not None or time is not None or shift is not None or root or layer:
+            raise UsageError(
+                f"{arg('all')} goes with {arg('from_bvh')}, {arg('on')}, {arg('joints')} and {arg('subtree')} only"
+            )
+        return _apply_pose_file(doc, from_bvh, on, names, subtree)[0]
+    if pose is None:
+        raise UsageError(f"{arg('pose')} is missing (or give {arg('from_bvh')} with {arg('all')})")
+    if (from_bvh is None) != (frame is None):
+        raise UsageError(f"{arg('from_bvh')} and {arg('frame')} go together")
+    if not (rot or tra or w is not None or x is not None or from_bvh is not None or time is not None or shift is not None):
+        raise UsageError(
+            f"nothing to do: give {arg('rotate')}, {arg('translate')}, {arg('exaggerate')}, {arg('from_bvh')}, "
+            f"{arg('ease')}, {arg('time')} or {arg('shift')}"
+        )
+    if root and from_bvh is None and w is None:
+        raise UsageError(f"{arg('root')} goes with {arg('from_bvh')} or {arg('exaggerate')}")
+    if names and w is None and from_bvh is None and x is None:
+        raise UsageError(
+            f"{arg('joints')} restricts {arg('exaggerate')}, {arg('from_bvh')} and {arg('ease')} "
+            f"({arg('rotate')} and {arg('translate')} name their own joints)"
+        )
+    k = check_pose_index(doc, int(pose), layer)
+    values = None
+    if from_bvh is not None:
+        other, source = _pose_file(from_bvh)
+        try:
+            values = ops.values_from_motion(doc, other, int(frame), names, subtree)
+        except Exception as err:  # about the pose file, not the document
+            from .errors import StaggeredError
+
+            if isinstance(err, StaggeredError) and source:
+                raise err.with_source(source) from None
+            raise
+    doc = ops.edit_pose(
+        doc,
+        k,
+        on=on,
+        rotate=rot,
+        translate=tra,
+        exaggerate=w,
+        relative_to=str(relative_to),
+        joints=names,
+        subtree=subtree,
+        values=values,
+        root=root,
+        layer=layer,
+    )
+    if x is not None:
+        masks = ops.joint_mask(doc, names, subtree) if names else None
+        doc = ease_op(doc, k, x, layer=layer, masks=masks)
+    if time is not None or shift is not None:
+        t0 = doc.poses_of(layer)[k]
+        t = _number(time, "time") if time is not None else t0 + _number(shift, "shift")
+        if layer:
+            from .ops.layers import retime_layer_pose
+
+            doc = retime_layer_pose(doc, layer, k, t)
+        else:
+            from .ops.timing import retime_pose
+
+            doc = retime_pose(doc, k, t)
+    return doc
+
+
+def _pose_file(from_bvh) -> tuple[BvhMotion, str]:
+    """The BVH ``from_bvh`` names (a path) or is, and its name for messages."""
+    from .motion import BvhMotion
+
+    if isinstance(from_bvh, BvhMotion):
+        return from_bvh, from_bvh.name
+    from .io.files import display_name
+    from .io.formats import read as io_read
+
+    name = display_name(os.fspath(from_bvh))
+    other = io_read(from_bvh)
+    if not isinstance(other, BvhMotion):
+        raise UsageError(f"{arg('from_bvh')} {name} is not a BVH file")
+    return other, name
+
+
+def _apply_pose_file(doc, from_bvh, on, names, subtree):
+    """``from_bvh=..., all=True``: frame k of the file sets pose k where it
+    changed.  Returns the document, the poses and the joints changed."""
+    from .ops.pose_file import apply_pose_file
+
+    other, name = _pose_file(from_bvh)
+    return apply_pose_file(doc, other, on=on, joints=names, subtree=subtree, name=name)
+
+
+def succession(
+    doc: Document,
+    *,
+    offset: float,
+    power: float = 1.0,
+    joint: str | None = None,
+    chain: str | Sequence[str] | None = None,
+    poses: Sequence[int] | None = None,
+    time: Span | None = None,
+    clamp: bool = False,
+) -> Document:
+    """Stagger the timing down a limb: ``r[k,i] += offset * depth(i) ** power``.
+
+    Parameters
+    ----------
+    doc : Document
+    offset : float
+        Seconds per unit of depth (negative: the limb leads).
+    power : float
+        Nonlinearity (1 is Neff and Fiume's linear succession).
+    joint : str, optional
+        The joint at depth 0 (BVH; its subtree follows), or a part such as
+        ``"@left-arm"``.
+    chain : str or list of str, optional
+        An explicit order instead (C3D markers): depths 0, 1, 2, ...
+    poses : list of int, optional
+        Only these poses (default: all but the first and last).
+    time : (float, float), optional
+        Only the poses between A and B seconds.
+    clamp : bool
+        Stop knots short of their neighbours instead of refusing.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> loose = st.succession(doc, joint="LeftArm", offset=0.03, power=1.5, clamp=True)
+    >>> loose.n_poses == doc.n_poses
+    True
+    """
+    from .ops.timing import succession as op
+
+    doc = _document(doc)
+    s = _number(offset, "offset")
+    p = _number(power, "power")
+    if p <= 0:
+        raise UsageError(f"{arg('power')} must be positive, got {power}")
+    if (joint is None) == (chain is None):
+        raise UsageError(f"give exactly one of {arg('joint')} and {arg('chain')}")
+    return op(
+        doc, s, p, joint=joint, chain=_names(chain, "chain"), poses=_pose_mask(doc, poses, time), clamp=clamp
+    )
+
+
+def randomize(
+    doc: Document,
+    *,
+    tau: float,
+    seed: int,
+    joints: str | Sequence[str] | None = None,
+    subtree: bool = False,
+    poses: Sequence[int] | None = None,
+    time: Span | None = None,
+    clamp: bool = False,
+) -> Document:
+    """Add random offsets ``uniform(-tau, tau)`` seconds to the refinements.
+
+    Parameters
+    ----------
+    doc : Document
+    tau : float
+        Bound of the offsets, seconds.
+    seed : int
+        The same seed gives the same document.
+    joints, subtree : optional
+        Only these joints or markers (and their descendants).
+    poses, time, clamp :
+        As in :func:`succession`.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> a = st.randomize(doc, tau=0.02, seed=7)
+    >>> b = st.randomize(doc, tau=0.02, seed=7)
+    >>> bool((st.bake(a).channels == st.bake(b).channels).all())
+    True
+    """
+    from .ops.timing import randomize as op
+
+    doc = _document(doc)
+    t = _number(tau, "tau")
+    if t < 0:
+        raise UsageError(f"{arg('tau')} must not be negative, got {tau}")
+    if int(seed) < 0:
+        raise UsageError(f"{arg('seed')} must not be negative, got {seed}")
+    names = _names(joints, "joints")
+    if subtree and not names:
+        raise UsageError(f"{arg('subtree')} needs {arg('joints')}: it adds the descendants of the joints named there")
+    return op(doc, t, int(seed), joints=names, subtree=subtree, poses=_pose_mask(doc, poses, time), clamp=clamp)
+
+
+# --------------------------------------------------------------------------- layers
+
+
+def add_layer(doc: Document, *, keep: str | int | None = None, times: Sequence[float] | None = None) -> Document:
+    """Stack a layer of identity offsets over the motion (it does not change).
+
+    Parameters
+    ----------
+    doc : Document
+    keep : int or str, optional
+        The layer's poses are N (or P%) of the current poses, as
+        :func:`cull` ranks them.
+    times : list of float, optional
+        Or the layer's poses are at these times, seconds.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.add_layer(st.extract(st.read("data/samples/march.bvh")), keep=4)
+    >>> doc.n_layers
+    2
+    >>> arm = st.edit_pose(doc, 1, layer=1, rotate={"LeftArm": (0, 0, 15)})
+    >>> bool((st.bake(st.remove_layer(arm, 1)).channels == st.bake(doc).channels).all())
+    True
+    """
+    from .ops import layers as ops
+    from .ops.cull import choose
+
+    doc = _document(doc)
+    if (keep is None) == (times is None):
+        raise UsageError(f"give the layer's poses: {arg('keep')} or {arg('times')}")
+    if keep is not None:
+        check_keep(keep)
+        return ops.add_layer(doc, doc.pose_t[choose(doc, keep=str(keep))])
+    values = [_number(t, "times") for t in times]
+    if not values:
+        raise UsageError(f"{arg('times')}: give at least one time")
+    return ops.add_layer(doc, ops.layer_times(doc, values))
+
+
+def remove_layer(doc: Document, layer: int) -> Document:
+    """The document without layer ``layer`` (1 and up): the motion as it was
+    before that layer, exactly.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> st.remove_layer(st.add_layer(doc, times=[0.5, 2.0]), 1).n_layers
+    1
+    """
+    from .ops import layers as ops
+
+    return ops.remove_layer(_document(doc), int(layer))
+
+
+def detail(
+    doc: Document,
+    *,
+    gain: float,
+    joints: str | Sequence[str] | None = None,
+    subtree: bool = False,
+    time: Span | None = None,
+) -> Document:
+    """Scale the displacement maps (the capture's detail over the splines).
+
+    Parameters
+    ----------
+    doc : Document
+    gain : float
+        0 the splines alone, 1 unchanged, 0.5 softens, 1.5 accentuates.
+    joints, subtree : optional
+        Only these joints or markers (and their descendants).
+    time : (float, float), optional
+        Only between A and B seconds (eased in and out over 0.1 s).
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> smooth = st.bake(st.detail(doc, gain=0), ik=False)
+    >>> splines = st.bake(doc, layers="splines", ik=False)
+    >>> bool(abs(smooth.channels - splines.channels).max() < 1e-6)
+    True
+    """
+    from .ops.edit_pose import joint_mask
+    from .ops.layers import check_gain
+    from .ops.layers import detail as op
+
+    doc = _document(doc)
+    g = _number(gain, "gain")
+    check_gain(g)
+    names = _names(joints, "joints")
+    if subtree and not names:
+        raise UsageError(f"{arg('subtree')} needs {arg('joints')}: it adds the descendants of the joints named there")
+    masks = joint_mask(doc, names, subtree) if names else None
+    return op(doc, g, masks=masks, time_range=_span(time, "time"))
+
+
+# --------------------------------------------------------------------------- contacts
+
+
+def constraints(
+    doc: Document,
+    *,
+    add: Sequence[tuple[str, float, float]] = (),
+    remove: Sequence[int] = (),
+    detect: bool = False,
+    contact_joints: str | Sequence[str] | None = None,
+    min_contact: float | None = None,
+    contact_tolerance: float | None = None,
+) -> Document:
+    """Add, remove or re-detect the contact constraints the bake enforces.
+
+    The list is ``doc.constraints`` (and ``info(doc)["constraints"]``).
+    Edits apply in this order: ``detect`` (replaces the constraints on the
+    joints it looks at), ``remove`` (indices in the list as given), ``add``
+    (planted by the user: held still).  The result is sorted by start time.
+
+    Parameters
+    ----------
+    doc : Document
+    add : list of (joint, start, end)
+        Plant ``joint`` from ``start`` to ``end`` seconds.
+    remove : list of int
+        Constraint indices to drop.
+    detect : bool
+        Re-detect contacts on the source motion.
+    contact_joints, min_contact, contact_tolerance : optional
+        What ``detect`` looks at, as :func:`extract` takes them.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> fewer = st.constraints(doc, remove=[0])
+    >>> len(fewer.constraints) == len(doc.constraints) - 1
+    True
+    """
+    from .ops.constraints import edit_constraints
+
+    doc = _document(doc)
+    if not detect and (contact_joints is not None or min_contact is not None or contact_tolerance is not None):
+        raise UsageError(f"{arg('contact_joints')}, {arg('min_contact')} and {arg('contact_tolerance')} go with {arg('detect')}")
+    if detect and remove:
+        raise UsageError(f"{arg('remove')} refers to the listed constraints: run it apart from {arg('detect')}")
+    spans = []
+    for item in add:
+        try:
+            joint, start, end = item
+        except (TypeError, ValueError):
+            raise UsageError(f"{arg('add')} takes (joint, start, end) triples, got {item!r}") from None
+        a, b = _number(start, "add"), _number(end, "add")
+        if a > b:
+            raise UsageError(f"{arg('add')}: start must not exceed end in {item!r}")
+        spans.append((str(joint), a, b))
+    return edit_constraints(
+        doc,
+        add=spans,
+        remove=[int(k) for k in remove],
+        detect=detect,
+        contact_joints=_names(contact_joints, "contact_joints"),
+        min_contact=None if min_contact is None else _number(min_contact, "min_contact"),
+        contact_tolerance=None if contact_tolerance is None else _number(contact_tolerance, "contact_tolerance"),
+    )
+
+
+# --------------------------------------------------------------------------- key poses
+
+
+def new(motion: BvhMotion, *, times: Sequence[float] | None = None) -> Document:
+    """A document whose poses are the frames of a sparse BVH (key poses
+    blocked in a DCC): cubic splines through the keys, empty displacement maps.
+
+    Parameters
+    ----------
+    motion : BvhMotion
+        One frame per key.
+    times : list of float, optional
+        Seconds of each key, from 0, increasing (default: the file's frame times).
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> keys = st.export_poses(doc)
+    >>> blocked = st.new(keys, times=list(doc.pose_t))
+    >>> blocked.n_poses == doc.n_poses
+    True
+    """
+    import numpy as np
+
+    from .motion import BvhMotion
+    from .ops.pose_file import new_document
+
+    if not isinstance(motion, BvhMotion):
+        raise UsageError(f"{arg('motion')}: new reads key poses from a BVH, got {type(motion).__name__}")
+    t = None if times is None else np.array([_number(x, "times") for x in times])
+    if t is not None and not len(t):
+        raise UsageError(f"{arg('times')}: give at least one time")
+    return new_document(motion, t, source_name=motion.name, source_bytes=motion.source or None)
+
+
+def export_poses(doc: Document, *, on: str = "true") -> BvhMotion:
+    """The document's poses as a BVH clip with one frame per pose, in the
+    source's hierarchy, channels and number format: edit it in a DCC and
+    bring it back with ``edit_pose(doc, from_bvh=..., all=True)``.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> st.export_poses(doc).n_frames == doc.n_poses
+    True
+    """
+    from .ops.pose_file import export_poses as op
+
+    return op(_document(doc), on=on)
+
+
+# --------------------------------------------------------------------------- bake
+
+
+def bake(
+    doc: Document, *, fps: float | None = None, layers: str = "all", ik: bool = True, ik_blend: float = 0.1
+) -> Motion:
+    """The document's dense motion: splines, displacement maps, stacked
+    layers and the contact layer.
+
+    Parameters
+    ----------
+    doc : Document
+    fps : float, optional
+        Output frame rate (default: the source's).
+    layers : {"all", "splines"}
+        ``"splines"`` bakes the splines alone: the smooth motion the poses capture.
+    ik : bool
+        Apply the contact (IK) layer.
+    ik_blend : float
+        Seconds over which the contact layer fades in and out.
+
+    Returns
+    -------
+    BvhMotion or MarkerMotion
+        Of the source's kind; :func:`write` writes it.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> doc = st.extract(st.read("data/samples/march.bvh"))
+    >>> st.bake(doc, fps=60).n_frames
+    241
+    """
+    from .ops.bake import bake as op
+
+    doc = _document(doc)
+    rate = None if fps is None else _number(fps, "fps")
+    blend = _number(ik_blend, "ik_blend")
+    if blend < 0:
+        raise UsageError(f"{arg('ik_blend')} must not be negative, got {ik_blend}")
+    return op(doc, fps=rate, layers=layers, ik=ik, ik_blend=blend)
+
+
+# --------------------------------------------------------------------------- looking
+
+
+def info(value: Document | Motion) -> dict[str, Any]:
+    """What a document, a BVH or a C3D holds: the dict ``info --json`` prints.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> summary = st.info(st.read("data/samples/march.bvh"))
+    >>> summary["kind"], summary["frames"], summary["joints"]
+    ('bvh', 121, 17)
+    """
+    from .ops.info import summarize
+
+    return summarize(value)
+
+
+def plot(
+    doc: Document,
+    *,
+    kind: str = "signals",
+    joints: str | Sequence[str] | None = None,
+    time: Span | None = None,
+    name: str | None = None,
+) -> Figure:
+    """A matplotlib Figure of the document: ``"signals"`` (evidence and pose
+    probability), ``"timing"`` (the dope sheet of the knots) or ``"curves"``.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> fig = st.plot(st.extract(st.read("data/samples/march.bvh")), kind="timing")
+    >>> len(fig.axes) >= 1
+    True
+    """
+    from . import plots
+
+    doc = _document(doc)
+    return plots.plot_figure(
+        doc, kind, name=name or doc.source_name, joints=_names(joints, "joints"), time=_span(time, "time")
+    )
+
+
+def preview(
+    value: Document | Motion,
+    *,
+    compare: Document | Motion | None = None,
+    at: str = "poses",
+    count: int | None = None,
+    name: str | None = None,
+    compare_name: str | None = None,
+) -> Figure:
+    """Stick figures (side and front views) at the pose times, or at
+    ``count`` evenly spaced frames (``at="frames"``); ``compare`` is drawn
+    over in another colour.
+
+    Examples
+    --------
+    >>> import staggered_cli as st
+    >>> clip = st.read("data/samples/march.bvh")
+    >>> fig = st.preview(clip, at="frames", count=4)
+    >>> len(fig.axes)
+    8
+    """
+    from . import plots
+
+    if at not in ("poses", "frames"):
+        raise UsageError(f"{arg('at')} must be 'poses' or 'frames', got {at!r}")
+    return plots.preview_figure(
+        value, compare=compare, at=at, count=count, name=name or _name_of(value), compare_name=compare_name
+    )
+
+
+def _name_of(value) -> str:
+    return getattr(value, "name", "") or getattr(value, "source_name", "") or ""
+
+
+__all__ = [
+    "read",
+    "write",
+    "extract",
+    "cull",
+    "edit_pose",
+    "succession",
+    "randomize",
+    "add_layer",
+    "remove_layer",
+    "detail",
+    "constraints",
+    "new",
+    "export_poses",
+    "bake",
+    "info",
+    "plot",
+    "preview",
+]
