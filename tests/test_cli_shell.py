@@ -367,7 +367,7 @@ def test_output_to_stdout_and_pipeline(doc_file):
 
 def test_motion_where_a_document_is_needed_is_a_usage_error():
     path = mocap("bandai2_run_normal_001.bvh")
-    result = run(["copy", str(path), "-o", "-"], group=_copy_group())
+    result = run(["cull", str(path), "--keep", "3", "-o", "-"])
     assert_one_line_error(result, 2, path.name, "staggered extract")
 
 
