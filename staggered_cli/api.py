@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, BinaryIO, Union
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from .errors import UsageError, arg
 
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from .document import Document
     from .motion import BvhMotion, MarkerMotion
 
-    Motion = Union[BvhMotion, MarkerMotion]
+    Motion = BvhMotion | MarkerMotion
 
 Triple = tuple[float, float, float]
 Span = tuple[float, float]
@@ -165,7 +165,8 @@ def write(
     >>> import staggered_cli as st
     >>> buffer = io.BytesIO()
     >>> st.write(st.read("data/samples/march.bvh"), buffer)
-    >>> buffer.getvalue() == open("data/samples/march.bvh", "rb").read()
+    >>> from pathlib import Path
+    >>> buffer.getvalue() == Path("data/samples/march.bvh").read_bytes()
     True
     """
     from .io.formats import write as io_write
@@ -226,7 +227,8 @@ def extract(
     >>> doc.n_poses, len(doc.constraints)
     (24, 8)
     >>> st.write(st.bake(doc), "out/doctest/march.bvh", force=True)
-    >>> open("out/doctest/march.bvh", "rb").read() == open("data/samples/march.bvh", "rb").read()
+    >>> from pathlib import Path
+    >>> Path("out/doctest/march.bvh").read_bytes() == Path("data/samples/march.bvh").read_bytes()
     True
     """
     from .motion import BvhMotion, MarkerMotion
@@ -435,7 +437,8 @@ def edit_pose(
         raise UsageError(f"{arg('pose')} is missing (or give {arg('from_bvh')} with {arg('all')})")
     if (from_bvh is None) != (frame is None):
         raise UsageError(f"{arg('from_bvh')} and {arg('frame')} go together")
-    if not (rot or tra or w is not None or x is not None or from_bvh is not None or time is not None or shift is not None):
+    moves = time is not None or shift is not None
+    if not (rot or tra or w is not None or x is not None or from_bvh is not None or moves):
         raise UsageError(
             f"nothing to do: give {arg('rotate')}, {arg('translate')}, {arg('exaggerate')}, {arg('from_bvh')}, "
             f"{arg('ease')}, {arg('time')} or {arg('shift')}"
@@ -760,7 +763,9 @@ def constraints(
 
     doc = _document(doc)
     if not detect and (contact_joints is not None or min_contact is not None or contact_tolerance is not None):
-        raise UsageError(f"{arg('contact_joints')}, {arg('min_contact')} and {arg('contact_tolerance')} go with {arg('detect')}")
+        raise UsageError(
+            f"{arg('contact_joints')}, {arg('min_contact')} and {arg('contact_tolerance')} go with {arg('detect')}"
+        )
     if detect and remove:
         raise UsageError(f"{arg('remove')} refers to the listed constraints: run it apart from {arg('detect')}")
     spans = []

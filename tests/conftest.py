@@ -188,3 +188,29 @@ def cmu_walk():
 def bandai_run():
     """(motion, extracted document) of the Bandai run at 30 Hz (68 frames)."""
     return dev_motion("bandai2_run_normal_001.bvh"), dev_document("bandai2_run_normal_001.bvh")
+
+
+class StaggeredWarnings(list):
+    """The messages (``str``, Python's wording) of the :class:`StaggeredWarning`
+    s issued inside ``with staggered_warnings() as seen:``."""
+
+
+def staggered_warnings():
+    """Collect the library's warnings (every one, none turned into an error)."""
+    import contextlib
+    import warnings
+
+    from staggered_cli.errors import StaggeredWarning
+
+    @contextlib.contextmanager
+    def collect():
+        seen = StaggeredWarnings()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", StaggeredWarning)
+            yield seen
+        seen.extend(str(w.message) for w in caught if issubclass(w.category, StaggeredWarning))
+        others = [w for w in caught if not issubclass(w.category, StaggeredWarning)]
+        for w in others:  # anything else still fails the test, as -W error would
+            raise AssertionError(f"unexpected warning: {w.category.__name__}: {w.message}")
+
+    return collect()

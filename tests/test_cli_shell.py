@@ -16,12 +16,12 @@ import pytest
 from click.testing import CliRunner
 
 from staggered_cli import __version__
-from staggered_cli.ops import info as info_ops
 from staggered_cli.cli import options
 from staggered_cli.cli.main import COMMANDS, EXIT_BROKEN_PIPE, EXIT_INTERRUPTED, StaggeredGroup, cli
 from staggered_cli.errors import DataError, StaggeredError, UsageError
 from staggered_cli.io import files
 from staggered_cli.io.document import document_bytes, parse_document
+from staggered_cli.ops import info as info_ops
 
 ROOT = Path(__file__).resolve().parents[1]
 MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"

@@ -5,7 +5,6 @@ spaced poses, refinements that earn their keep, honest culling."""
 from __future__ import annotations
 
 import functools
-import logging
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ from staggered_cli.sampling import local_pose
 from staggered_cli.skeleton import forward_kinematics
 from staggered_cli.variables import from_motion
 
-from .conftest import BVH_FILES, dev_bvh_files, dev_document, dev_motion
+from .conftest import BVH_FILES, dev_bvh_files, dev_document, dev_motion, staggered_warnings
 
 TPOSE = ("cmu_01_01_forward_jumps.bvh", "cmu_115_06_pick_up_box.bvh")
 WALKS = ("cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh")
@@ -169,12 +168,12 @@ def test_cull_keep_n_gives_exactly_n(name):
         assert cull.choose(d, keep=pct).sum() == want
 
 
-def test_cull_says_when_it_cannot_keep_what_was_asked(caplog):
+def test_cull_says_when_it_cannot_keep_what_was_asked():
     d = _doc("cmu_02_01_walk.bvh")
-    with caplog.at_level(logging.WARNING):
+    with staggered_warnings() as seen:
         mask = cull.choose(d, keep=str(d.n_poses + 5))
     assert mask.all()
-    assert len(caplog.records) == 1 and "only" in caplog.records[0].getMessage()
+    assert len(seen) == 1 and "only" in seen[0] and seen[0].startswith("keep ")
 
 
 def test_interval_and_select_give_exactly_those_poses():
@@ -211,7 +210,7 @@ def test_culling_by_error_keeps_a_better_layer_than_the_papers_priority():
     assert np.mean(errs["error"]) < np.mean(errs["paper"]), errs
 
 
-def test_readme_succession_works_after_culling_on_every_skeleton(caplog):
+def test_readme_succession_works_after_culling_on_every_skeleton():
     """cull --keep 30% | succession --offset 0.03 --power 1.5 down the left
     shoulder, without --clamp, on every dev skeleton; the far-knot warning is
     at most one line per command."""
@@ -221,8 +220,7 @@ def test_readme_succession_works_after_culling_on_every_skeleton(caplog):
             n for n in m.skeleton.names if "shoulder" in n.lower() and (n.lower().startswith("l") or n.endswith("_L"))
         )
         c = _culled(name, "30%")
-        caplog.clear()
-        with caplog.at_level(logging.WARNING):
+        with staggered_warnings() as seen:
             out = timing.succession(c, 0.03, 1.5, joint=shoulder)
         assert out.n_poses == c.n_poses
-        assert len([r for r in caplog.records if "neighbouring pose" in r.getMessage()]) <= 1
+        assert len([s for s in seen if "neighbouring pose" in s]) <= 1

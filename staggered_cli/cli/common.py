@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from ..errors import DataError, StaggeredError, UsageError
+from ..errors import DataError
 from .options import check_output, document_format, emit, load_document
 
 

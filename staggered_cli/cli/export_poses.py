@@ -20,8 +20,8 @@ def export_poses(input_path, on, output, force):
     the source; edit it in a DCC and bring it back with
     `edit-pose FILE --from-bvh poses.bvh --all`.
     """
-    from ..io.files import display_name
     from ..api import export_poses as op
+    from ..io.files import display_name
     from ..ops.pose_file import frame_note
 
     check_motion_output("bvh", output, "export-poses")

@@ -22,7 +22,6 @@ def _read_motion(path: str):
     from ..document import Document
     from ..errors import UsageError
     from ..io.files import display_name
-    from ..io.formats import read
     from ..ops.extract import MAX_EXTRACT_VALUES
 
     # a BVH too large to extract is refused from its header, before its values are parsed

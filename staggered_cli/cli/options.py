@@ -22,11 +22,11 @@ starts fast.
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
-from ..errors import DataError, StaggeredError, UsageError
+from ..errors import UsageError
 from ..io import files
 
 if TYPE_CHECKING:

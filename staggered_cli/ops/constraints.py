@@ -90,9 +90,8 @@ def edit_constraints(
         n = len(cons)
         bad = [k for k in remove if not -n <= k < n]
         if bad:
-            raise UsageError(
-                f"no constraint {bad[0]} (the document has {n}: 0 to {n - 1})" if n else "the document has no constraints"
-            )
+            has = f"the document has {n}: 0 to {n - 1}"
+            raise UsageError(f"no constraint {bad[0]} ({has})" if n else "the document has no constraints")
         drop = {k % n for k in remove}
         if len(drop) < len(remove):
             twice = next(k for i, k in enumerate(remove) if k % n in {j % n for j in remove[:i]})

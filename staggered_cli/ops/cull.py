@@ -7,18 +7,13 @@ change (SPEC invariant 2).
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from .. import placement, quat
 from ..document import Document, check_pose_index, pose_near
-from ..errors import UsageError
+from ..errors import UsageError, arg, warn
 from ..representation import ROTATION, evaluate, evaluate_at, knots_from_poses, pose_arrays, restructure
 from ..signals import reprioritized
-
-log = logging.getLogger(__name__)
-
 
 #: A pose this close (seconds) to a contact start or end is a pose on that
 #: contact change (half the pose probability's tent width: the cluster's reach).
@@ -48,13 +43,13 @@ def keep_count(keep: str, n_poses: int) -> int:
         if text.endswith("%"):
             pct = float(text[:-1])
             if not np.isfinite(pct) or not 0 < pct <= 100:
-                raise UsageError(f"--keep percentage must be in (0, 100], got {keep!r}")
+                raise UsageError(f"{arg('keep')} percentage must be in (0, 100], got {keep!r}")
             return int(np.floor(n_poses * pct / 100.0 + 0.5))
         n = int(text)
     except ValueError:
-        raise UsageError(f"--keep takes a percentage like 40% or a count like 12, got {keep!r}") from None
+        raise UsageError(f"{arg('keep')} takes a percentage like 40% or a count like 12, got {keep!r}") from None
     if n < 1:
-        raise UsageError(f"--keep must keep at least one pose, got {keep!r}")
+        raise UsageError(f"{arg('keep')} must keep at least one pose, got {keep!r}")
     return n
 
 
@@ -85,13 +80,13 @@ def choose(
     document's :func:`base_motion`, when the caller has it.
     """
     if by not in RANKINGS:
-        raise UsageError(f"--by must be one of {', '.join(RANKINGS)}, got {by!r}")
+        raise UsageError(f"{arg('by')} must be one of {', '.join(RANKINGS)}, got {by!r}")
     K = doc.n_poses
     mask = np.ones(K, dtype=bool)
     if interval is not None:
         a, b = interval
         if np.isnan(a) or np.isnan(b) or a > b:
-            raise UsageError(f"--interval must be A:B with A <= B seconds, got {a}:{b}")
+            raise UsageError(f"{arg('interval')} must be A:B with A <= B seconds, got {a}:{b}")
         mask &= (doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)
     if select is not None:
         sel = np.zeros(K, dtype=bool)
@@ -105,11 +100,11 @@ def choose(
     n = max(asked, min(2, K))
     have = int(mask.sum())
     if asked < n:
-        log.warning("--keep %s: keeping %d poses, the first and last always stay", keep, n)
+        warn(f"{arg('keep')} %s: keeping %d poses, the first and last always stay", keep, n)
     if n >= have:
         if n > have:
-            log.warning(
-                "--keep %s asks for %d poses but there are only %d to choose from: kept them all", keep, n, have
+            warn(
+                f"{arg('keep')} %s asks for %d poses but there are only %d to choose from: kept them all", keep, n, have
             )
         return mask
     contact = np.zeros(K, dtype=bool) if ignore_contacts else contact_poses(doc)
@@ -247,14 +242,14 @@ def add_pose(doc: Document, time: float) -> Document:
     """
     half = 0.5 * doc.frame_time  # times as info prints them (4 decimals) must be accepted
     if not np.isfinite(time) or not -half <= time <= doc.duration + half:
-        raise UsageError(f"--add-time must lie within the clip (0 to {doc.seconds(doc.duration)}), got {time:g}")
+        raise UsageError(f"{arg('add_time')} must lie within the clip (0 to {doc.seconds(doc.duration)}), got {time:g}")
     time = float(min(max(time, 0.0), doc.duration))
     near = pose_near(doc, time)
     if near is not None:
         if abs(doc.pose_t[near] - time) < 1e-9:
             raise UsageError(f"there is already a pose at {doc.seconds(time)} (pose {near})")
         raise UsageError(
-            f"--add-time {time:g}: pose {near} is at {doc.seconds(doc.pose_t[near])}, less than half a frame "
+            f"{arg('add_time')} {time:g}: pose {near} is at {doc.seconds(doc.pose_t[near])}, less than half a frame "
             "away (poses keep at least half a frame apart)"
         )
     k_new = int(np.searchsorted(doc.pose_t, time))
@@ -268,8 +263,11 @@ def add_pose(doc: Document, time: float) -> Document:
         conflict = (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi)
         for k in np.flatnonzero(conflict.any(axis=1)):
             names = ", ".join(tr.names[i] for i in np.flatnonzero(conflict[k]))
-            log.warning(
-                "--add-time %s: pose %d's refinements of %s collapse to 0 to make room", doc.seconds(time), k, names
+            warn(
+                f"{arg('add_time')} %s: pose %d's refinements of %s collapse to 0 to make room",
+                doc.seconds(time),
+                k,
+                names,
             )
         refine = np.where(conflict, 0.0, refine)
         value = np.where(conflict[..., None], edit, value)

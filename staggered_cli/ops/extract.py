@@ -52,7 +52,7 @@ import numpy as np
 from .. import contacts as contact_detection
 from .. import ik, placement, signals
 from ..document import Document
-from ..errors import DataError, UsageError
+from ..errors import DataError, UsageError, arg
 from ..motion import BvhMotion, MarkerMotion, rate_problem
 from ..variables import dense_variables, fits_by_column, from_motion
 
@@ -466,14 +466,14 @@ def extract(
     UsageError for a bad option or an unknown contact joint.
     """
     smoothing = _check(
-        "--smoothing", signals.DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
+        arg("smoothing"), signals.DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
     )
-    filter_width = _check("--filter-width", filter_width, upper=MAX_FILTER_WIDTH)
-    refine_window = _check("--refine-window", refine_window, upper=MAX_REFINE_WINDOW)
-    min_contact = _check("--min-contact", min_contact, upper=MAX_MIN_CONTACT)
-    contact_tolerance = _check("--contact-tolerance", contact_tolerance, positive=True)
-    significance = _check("--significance", significance)
-    min_spacing = _check("--min-spacing", min_spacing, upper=MAX_MIN_SPACING)
+    filter_width = _check(arg("filter_width"), filter_width, upper=MAX_FILTER_WIDTH)
+    refine_window = _check(arg("refine_window"), refine_window, upper=MAX_REFINE_WINDOW)
+    min_contact = _check(arg("min_contact"), min_contact, upper=MAX_MIN_CONTACT)
+    contact_tolerance = _check(arg("contact_tolerance"), contact_tolerance, positive=True)
+    significance = _check(arg("significance"), significance)
+    min_spacing = _check(arg("min_spacing"), min_spacing, upper=MAX_MIN_SPACING)
     T = motion.n_frames
     rate = float(motion.rate)
     size = motion.channels.size if isinstance(motion, BvhMotion) else motion.points.size

@@ -86,7 +86,8 @@ def summarize(value, name: str | None = None) -> dict[str, Any]:
     elif isinstance(value, Document):
         summary = document_info(value)
     else:
-        raise UsageError(f"{arg('value')} must be a Document, a BvhMotion or a MarkerMotion, got {type(value).__name__}")
+        what = type(value).__name__
+        raise UsageError(f"{arg('value')} must be a Document, a BvhMotion or a MarkerMotion, got {what}")
     if name is None:
         name = getattr(value, "name", "") or getattr(value, "source_name", "")
     return {"file": name, **summary}

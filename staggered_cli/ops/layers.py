@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import quat
 from ..document import MAX_LAYERS, Document, check_pose_index, check_pose_move, check_time_range
-from ..errors import UsageError
+from ..errors import UsageError, arg
 from ..representation import ROTATION, Track, evaluate_at, offset_layer, sample_times
 
 #: ``--ease`` beyond this is no longer a transition (the controls overshoot).
@@ -48,7 +48,7 @@ def layer_times(doc: Document, times: list[float]) -> np.ndarray:
     out = [0.0, doc.duration]
     for t in times:
         if not np.isfinite(t) or not -half <= t <= doc.duration + half:
-            raise UsageError(f"--times: {t:g} s lies outside the clip (0 to {doc.seconds(doc.duration)})")
+            raise UsageError(f"{arg('times')}: {t:g} s lies outside the clip (0 to {doc.seconds(doc.duration)})")
         out.append(float(min(max(t, 0.0), doc.duration)))
     t = np.unique(np.array(out))
     keep = np.concatenate([[True], np.diff(t) > 1e-9])
@@ -72,8 +72,13 @@ def remove_layer(doc: Document, layer: int) -> Document:
     below and above it give, exactly."""
     if not 1 <= layer < doc.n_layers:
         if doc.n_layers == 1:
-            raise UsageError(f"--remove {layer}: the document has only its base layer (0), which stays")
-        raise UsageError(f"--remove takes a layer from 1 to {doc.n_layers - 1} (the base layer 0 stays), got {layer}")
+            raise UsageError(
+                f"{arg('layer', '--remove')} {layer}: the document has only its base layer (0), which stays"
+            )
+        raise UsageError(
+            f"{arg('layer', '--remove')} takes a layer from 1 to {doc.n_layers - 1} (the base layer 0 stays), "
+            f"got {layer}"
+        )
     tracks = tuple(tr.without_layer(layer) for tr in doc.tracks)
     poses = doc.layer_pose_t[: layer - 1] + doc.layer_pose_t[layer:]
     return replace(doc, tracks=tracks, layer_pose_t=poses)
@@ -198,13 +203,13 @@ def ease(doc: Document, k: int, x: float, *, layer: int = 0, masks: list[np.ndar
 def check_gain(gain: float) -> None:
     """Refuse a ``detail --gain`` outside 0 to :data:`MAX_GAIN`."""
     if not np.isfinite(gain) or not 0.0 <= gain <= MAX_GAIN:
-        raise UsageError(f"--gain must be a number from 0 to {MAX_GAIN:g}, got {gain:g}")
+        raise UsageError(f"{arg('gain')} must be a number from 0 to {MAX_GAIN:g}, got {gain:g}")
 
 
 def check_ease(x: float) -> None:
     """Refuse an ``--ease`` outside 0 to :data:`MAX_EASE`."""
     if not np.isfinite(x) or not 0.0 <= x <= MAX_EASE:
-        raise UsageError(f"--ease must be a number from 0 to {MAX_EASE:g}, got {x:g}")
+        raise UsageError(f"{arg('ease')} must be a number from 0 to {MAX_EASE:g}, got {x:g}")
 
 
 def detail_gain(t: np.ndarray, gain: float, time_range: tuple[float, float] | None, duration: float) -> np.ndarray:

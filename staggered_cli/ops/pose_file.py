@@ -13,13 +13,11 @@
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from .. import quat
 from ..document import Document, require_bvh, variable_layout
-from ..errors import DataError, UsageError
+from ..errors import DataError, UsageError, arg, warn
 from ..kinds import ops_for
 from ..motion import BvhMotion, channels_from_local, nominal_rate
 from ..representation import ROTATION, TRANSLATION, Layer, Track, knots_from_poses, pose_arrays
@@ -33,12 +31,11 @@ TRANSLATION_CHANGED = 1e-5  # of figure height
 #: figure height: float32 round trips (Blender) pass, an axis conversion fails.
 OFFSET_TOLERANCE = 1e-4
 
-log = logging.getLogger(__name__)
 
 
 def _on(on: str) -> str:
     if on not in ("true", "extreme"):
-        raise UsageError(f"--on must be 'true' or 'extreme', got {on!r}")
+        raise UsageError(f"{arg('on')} must be 'true' or 'extreme', got {on!r}")
     return on
 
 
@@ -86,7 +83,7 @@ def _warn_layers(doc: Document, what: str) -> None:
     if doc.n_layers > 1:
         n = doc.n_layers - 1
         above = "the layer above it stays" if n == 1 else f"the {n} layers above it stay"
-        log.warning("%s works on the base layer's poses; %s as it is (see `layer --list`)", what, above)
+        warn("%s works on the base layer's poses; %s as it is (see `layer --list`)", what, above)
 
 
 def frame_note(doc: Document, name: str) -> str:
@@ -107,9 +104,9 @@ def check_same_skeleton(doc: Document, motion: BvhMotion, name: str | None = Non
     within :data:`OFFSET_TOLERANCE` of the figure height of the document's.
     Raises DataError naming the first joint that differs and by how much.
     """
-    src = require_bvh(doc, "--from-bvh")
+    src = require_bvh(doc, arg("from_bvh"))
     if not isinstance(motion, BvhMotion):
-        raise UsageError("--from-bvh needs a BVH file", name)
+        raise UsageError(f"{arg('from_bvh')} needs a BVH file", name)
     ours, theirs = src.skeleton, motion.skeleton
     if ours.names != theirs.names:
         diff = next((i for i, (a, b) in enumerate(zip(ours.names, theirs.names, strict=False)) if a != b), None)
@@ -164,12 +161,13 @@ def apply_pose_file(
     moves a joint the document cannot move (no such channels); DataError
     when its skeleton differs (:func:`check_same_skeleton`).
     """
-    _warn_layers(doc, "edit-pose --all")
+    _warn_layers(doc, f"edit-pose {arg('all')}")
     _on(on)
     check_same_skeleton(doc, motion, name)
     if motion.n_frames != doc.n_poses:
         raise UsageError(
-            f"has {motion.n_frames} frames but the document has {doc.n_poses} poses: --all needs frame k for pose k",
+            f"has {motion.n_frames} frames but the document has {doc.n_poses} poses: "
+            f"{arg('all')} needs frame k for pose k",
             name,
         )
     sk = doc.source.skeleton
@@ -239,11 +237,13 @@ def check_key_times(times: np.ndarray, n_keys: int, frame_time: float) -> np.nda
     """
     times = np.asarray(times, dtype=float)
     if times.shape != (n_keys,):
-        raise UsageError(f"--times gives {len(times)} times for the file's {n_keys} frames")
+        raise UsageError(f"{arg('times')} gives {len(times)} times for the file's {n_keys} frames")
     if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-        raise UsageError("--times must increase strictly")
+        raise UsageError(f"{arg('times')} must increase strictly")
     if abs(times[0]) > 1e-9:
-        raise UsageError(f"--times must start at 0 (the first key is the motion's first frame), got {times[0]:g}")
+        raise UsageError(
+            f"{arg('times')} must start at 0 (the first key is the motion's first frame), got {times[0]:g}"
+        )
     rate = nominal_rate(frame_time)
     written, nominal = times[-1] / frame_time, times[-1] * rate
     on_nominal = abs(nominal - round(nominal)) < abs(written - round(written))

@@ -10,20 +10,16 @@ changes.
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from ..document import Document, check_pose_index, check_pose_move, check_time_range
-from ..errors import KnotOrderError, UsageError
+from ..errors import KnotOrderError, UsageError, arg, warn
 from ..kinds import ROTATION, TRANSLATION
 from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
 from ..signals import reprioritized
 from ..timewarp import warp
 from . import marker_chain
 from .edit_pose import joint_mask
-
-log = logging.getLogger(__name__)
 
 MAX_POWER = 10.0  # depth**power beyond this is no longer a succession pattern
 _MARGIN_FRAMES = 0.5  # clamped knots keep at least this many frames from a neighbouring knot
@@ -59,14 +55,14 @@ def select_poses(
         if not mask.any():
             # one line saying the edit changes nothing, rather than silence
             if K <= 2:
-                log.warning(
+                warn(
                     "the document has only its first and last pose, which pin the clip's ends: "
                     "nothing to retime (add poses with `cull --add-time T`)"
                 )
             else:
-                log.warning("no inner pose is selected (the first and last pin the clip's ends): nothing to retime")
+                warn("no inner pose is selected (the first and last pin the clip's ends): nothing to retime")
         elif ends:
-            log.warning("the first and last pose pin the clip's ends: their timing is left alone")
+            warn("the first and last pose pin the clip's ends: their timing is left alone")
     return mask
 
 
@@ -112,7 +108,7 @@ def change_refinements(
     if far:
         r, k, name = max(far, key=lambda x: (abs(x[0]), -x[1]))
         many = len(far) > 1
-        log.warning(
+        warn(
             "%d extreme knot%s closer to a neighbouring pose than to %s own (the largest: %s of pose %d, "
             "%s): the time warp there is steep",
             len(far),
@@ -220,7 +216,7 @@ def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
         raise KnotOrderError(
             f"the knots of {tr.names[i]!r} would cross between poses {k} and {k + 1} "
             f"({doc.seconds(doc.pose_t[k])} and {doc.seconds(doc.pose_t[k + 1])}): the timing change is too large "
-            "(use --clamp to stop short)"
+            f"(use {arg('clamp')} to stop short)"
         )
 
 
@@ -274,12 +270,12 @@ def succession(
     ``poses`` is a (K,) mask; interior poses by default.
     """
     if not np.isfinite(offset):
-        raise UsageError("--offset must be a finite number of seconds")
+        raise UsageError(f"{arg('offset')} must be a finite number of seconds")
     if not np.isfinite(power) or not 0 < power <= MAX_POWER:
-        raise UsageError(f"--power must be a positive number up to {MAX_POWER}, got {power}")
+        raise UsageError(f"{arg('power')} must be a positive number up to {MAX_POWER}, got {power}")
     if abs(offset) > _longest_shift(doc):
         raise UsageError(
-            f"--offset must not exceed {doc.seconds(_longest_shift(doc))} (the clip's length), got {offset:g}"
+            f"{arg('offset')} must not exceed {doc.seconds(_longest_shift(doc))} (the clip's length), got {offset:g}"
         )
     depth = _depths(doc, joint, chain)
     if poses is None:
@@ -287,21 +283,23 @@ def succession(
     with np.errstate(over="ignore", invalid="ignore"):
         step = np.where(depth > 0, offset * np.abs(depth.astype(float)) ** power, 0.0)
     if not np.all(np.isfinite(step)) or np.abs(step).max(initial=0.0) > _longest_shift(doc):
-        raise UsageError(f"--offset {offset:g} with --power {power:g} shifts knots beyond the clip's length")
+        raise UsageError(
+            f"{arg('offset')} {offset:g} with {arg('power')} {power:g} shifts knots beyond the clip's length"
+        )
     if not np.any(step) and poses.any():
         # one line saying the edit changes nothing, rather than silence
         if offset == 0.0:
-            log.warning("--offset 0: nothing to retime")
+            warn(f"{arg('offset')} 0: nothing to retime")
         elif chain:
-            log.warning(
-                "--chain %s: the first of a chain keeps its timing%s: nothing to retime "
+            warn(
+                f"{arg('chain')} %s: the first of a chain keeps its timing%s: nothing to retime "
                 "(give two or more markers or joints, in order)",
                 ",".join(chain),
                 "" if len(chain) == 1 else " and the others have no variables",
             )
         else:
-            log.warning(
-                "--joint %s: no joint below it has a variable (the joint itself keeps its timing): "
+            warn(
+                f"{arg('joint')} %s: no joint below it has a variable (the joint itself keeps its timing): "
                 "nothing to retime (start higher up the limb)",
                 joint,
             )
@@ -320,16 +318,16 @@ def _depths(doc: Document, joint: str | None, chain: list[str] | None) -> np.nda
         depth_of = {}
         for d, name in enumerate(chain):
             if name in chain[:d]:
-                raise UsageError(f"{name!r} appears twice in --chain")
+                raise UsageError(f"{name!r} appears twice in {arg('chain')}")
             try:
                 depth_of[doc.target_index(name)] = d
             except UsageError as err:
-                raise UsageError(f"--chain: {err.message}") from None
+                raise UsageError(f"{arg('chain')}: {err.message}") from None
         return np.array([depth_of.get(int(t), -1) for t in targets], dtype=int)
     if joint is None:
-        raise UsageError("succession needs --joint (or --chain for C3D documents)")
+        raise UsageError(f"succession needs {arg('joint')} (or {arg('chain')} for C3D documents)")
     if doc.kind != "bvh":
-        raise UsageError("C3D documents have no hierarchy: give the markers in order with --chain M1,M2,M3")
+        raise UsageError(f"C3D documents have no hierarchy: give the markers in order with {arg('chain')} M1,M2,M3")
     sk = doc.source.skeleton
     depth = sk.depth_below(sk.index(joint))
     return depth[targets] if V else np.zeros(0, dtype=int)
@@ -353,7 +351,7 @@ def randomize(
     tau = float(tau) + 0.0  # -0.0 -> 0.0: uniform(0, -0.0) is refused
     if not np.isfinite(tau) or tau < 0 or tau > _longest_shift(doc):
         raise UsageError(
-            f"--tau must be between 0 and {doc.seconds(_longest_shift(doc))} (the clip's length), got {tau:g}"
+            f"{arg('tau')} must be between 0 and {doc.seconds(_longest_shift(doc))} (the clip's length), got {tau:g}"
         )
     mask = np.concatenate(joint_mask(doc, joints, subtree))  # the same partial poses as edit-pose
     if poses is None:
