@@ -7,7 +7,7 @@ import re
 
 import click
 
-from ..errors import StaggeredError, UsageError
+from ..errors import UsageError
 from .common import check_output, check_picture_output
 from .options import emit, force_option, input_argument, load_input, output_option
 from .plot import title_name
@@ -59,16 +59,7 @@ def parse_at(value: str | None) -> tuple[str | None, int | None]:
 
 def _subject(path: str):
     """A document (as :class:`~staggered_cli.document.Document`) or a clip."""
-    from ..io.document import from_parts
-    from ..io.files import display_name
-
-    obj = load_input(path)
-    if not isinstance(obj, tuple):
-        return obj
-    try:
-        return from_parts(*obj)
-    except StaggeredError as err:
-        raise err.with_source(display_name(path)) from None
+    return load_input(path)
 
 
 @click.command("preview", cls=PreviewCommand)
@@ -126,6 +117,8 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
     if gif:
         data = plots.preview_gif(subject, compare=other, at=what or "frames", count=count, dpi=dpi or 80, **names)
     else:
-        fig = plots.preview_figure(subject, compare=other, at=what or "poses", count=count, **names)
+        from ..api import preview as op
+
+        fig = op(subject, compare=other, at=what or "poses", count=count, **names)
         data = plots.png_bytes(fig, dpi or plots.DPI)
     emit(output, data, force)
