@@ -50,7 +50,7 @@ SKIPPED = {
     "fish",
 }
 # linked into the temporary folder, as in a checkout
-LINKS = {"data": ROOT / "data", "Makefile": ROOT / "Makefile", "pyproject.toml": ROOT / "pyproject.toml", ".venv": ROOT / ".venv"}
+LINKS = {name: ROOT / name for name in ("data", "Makefile", "pyproject.toml", ".venv")}
 # the Slurm example in docs/batch.md runs as task 5 of an array of 8 (one BVH file of ../shared/mocap)
 ENV = {"SLURM_ARRAY_TASK_ID": "5", "SLURM_ARRAY_TASK_COUNT": "8", "SLURM_CPUS_PER_TASK": "2", "MPLBACKEND": "Agg"}
 README_LINES = 300
@@ -131,7 +131,10 @@ def checkout(tmp: Path) -> Path:
 
 
 def environment() -> dict[str, str]:
-    env = dict(os.environ, **ENV)
+    """This environment with ``staggered`` on PATH, without what an outer
+    make (``make test``) passes to its children."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MFLAGS", "MAKELEVEL", "MAKEOVERRIDES")}
+    env.update(ENV)
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
     return env
 
@@ -241,7 +244,8 @@ def test_links_point_at_files_and_headings():
             elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
                 bad.append(f"{path.relative_to(ROOT)}: {target} (no such heading)")
     index = (ROOT / "docs" / "README.md").read_text()
-    bad += [f"docs/README.md does not link {p.name}" for p in DOC_FILES[1:] if p.name != "README.md" and f"({p.name})" not in index]
+    pages = [p for p in DOC_FILES[1:] if p.name != "README.md"]
+    bad += [f"docs/README.md does not link {p.name}" for p in pages if f"({p.name})" not in index]
     assert not bad, "\n".join(bad)
 
 
