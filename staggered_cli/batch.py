@@ -312,7 +312,9 @@ def _reason(stage: str, err: BaseException, job: Job) -> str:
     import click
 
     if isinstance(err, StaggeredError):
-        text = err.message if err.source in _STDIO_NAMES or err.source in (job.src, job.dst) else str(err)
+        from .errors import cli_text
+
+        text = cli_text(err.message) if err.source in _STDIO_NAMES or err.source in (job.src, job.dst) else err.cli_message()
     elif isinstance(err, click.exceptions.ClickException):
         text = err.format_message()
     else:

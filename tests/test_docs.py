@@ -273,6 +273,7 @@ def test_python_blocks(path, tmp_path, monkeypatch):
         if block.tag in SHELL:
             run_shell(block, cwd)
     monkeypatch.chdir(cwd)
+    (cwd / "out").mkdir(exist_ok=True)  # where examples write, as the shell blocks' `mkdir -p out`
     parser = doctest.DocTestParser()
     runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     globs: dict = {"__name__": "__docs__"}
