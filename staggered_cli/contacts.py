@@ -312,3 +312,37 @@ def detect_contacts(
             found.append((s, n, e, name))
     found.sort()
     return tuple(Constraint(name, s * ft, e * ft) for s, _, e, name in found)
+
+
+def never_rested(names, constraints) -> tuple[str, ...]:
+    """The ``names`` (in their order) that no constraint of ``constraints`` is on."""
+    on = {c.joint for c in constraints}
+    return tuple(n for n in names if n not in on)
+
+
+def rest_rule(min_duration: float, tolerance: float) -> str:
+    """The detector's rule in words, for a message: what "at rest" means."""
+    return (
+        f"never still within {100 * tolerance:g} % of the figure height for {min_duration:g} s "
+        "near the lowest level each reaches"
+    )
+
+
+def warn_never_rested(
+    names, constraints, *, min_duration: float = DEFAULT_MIN_CONTACT, tolerance: float = DEFAULT_TOLERANCE
+) -> tuple[str, ...]:
+    """One warning line naming the chosen joints or markers ``names`` that
+    never come to rest (no constraint in ``constraints``): without it a
+    ``--contact-joints`` that names a heel which never touches gives no
+    constraint and no word.  Returns those names."""
+    idle = never_rested(names, constraints)
+    if idle:
+        share = "all" if len(idle) == len(names) else f"{len(idle)} of the"
+        log.warning(
+            "no contact on %s (%s %d named): %s (see --contact-tolerance, --min-contact)",
+            ", ".join(idle),
+            share,
+            len(names),
+            rest_rule(min_duration, tolerance),
+        )
+    return idle

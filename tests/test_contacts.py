@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from staggered_cli.contacts import detect_contacts
@@ -64,3 +66,81 @@ def test_the_up_direction_of_some_columns_is_that_of_their_copy():
     cols = np.array([4, 0, 2])
     for h in (0.1, 1000.0):
         assert up_direction(pts, h, cols).tolist() == up_direction(pts[:, cols].copy(), h).tolist()
+
+
+def _cli(args, data=None):
+    from click.testing import CliRunner
+
+    from staggered_cli.cli.main import cli
+
+    return CliRunner().invoke(cli, args, input=data)
+
+
+def _warnings(result) -> list[str]:
+    return [ln for ln in result.stderr.splitlines() if ln.startswith("staggered: WARNING:")]
+
+
+def test_contact_joints_that_never_rest_are_named_in_one_line(tmp_path):
+    """--contact-joints naming joints that never come to rest used to give
+    no constraint and no word (also with -v).  On the Bandai run the hands
+    never rest; on the CMU walk the head never does while the left foot has
+    its three plants; on the BTS walk neither the pelvis (r asis) nor c7
+    rest, its heel does.  A list that all rest stays silent."""
+    from .conftest import mocap
+
+    cases = [
+        ("bandai2_run_normal_001.bvh", "Hand_L,Hand_R", "no contact on Hand_L, Hand_R (all 2 named)"),
+        ("cmu_02_01_walk.bvh", "Head,LeftFoot", "no contact on Head (1 of the 2 named)"),
+        ("ezc3d_BTS_walk_gaps.c3d", "r asis,r heel,c7", "no contact on r asis, c7 (2 of the 3 named)"),
+        ("cmu_02_01_walk.bvh", "LeftFoot,RightToeBase", None),
+    ]
+    for name, joints, expected in cases:
+        out = tmp_path / "doc.npz"
+        r = _cli(["-v", "extract", str(mocap(name)), "--contact-joints", joints, "-o", str(out), "--force"])
+        assert r.exit_code == 0, r.stderr
+        lines = _warnings(r)
+        if expected is None:
+            assert lines == [], lines
+            continue
+        assert len(lines) == 1 and expected in lines[0] and "3 % of the figure height for 0.1 s" in lines[0], lines
+        # the joints that rest have their constraints, the others none
+        listed = _cli(["constraints", str(out), "--json"])
+        joints_with = {c["joint"] for c in json.loads(listed.stdout)["constraints"]}
+        named = joints.split(",")
+        idle = expected.split("no contact on ")[1].split(" (")[0].split(", ")
+        assert joints_with == set(named) - set(idle)
+
+
+def test_a_detection_that_finds_nothing_says_what_it_removed_and_kept(tmp_path):
+    """constraints --detect with a tolerance nothing meets: the feet's
+    constraints go (as they did, silently), the one a user added on a hand
+    stays, and one line says both; naming a joint that never rests keeps
+    the feet's constraints, and the line says that too."""
+    from .conftest import cli_extract
+
+    doc = tmp_path / "walk.npz"
+    doc.write_bytes(cli_extract("cmu_02_01_walk.bvh"))
+    with_hand = tmp_path / "hand.npz"
+    assert _cli(["constraints", str(doc), "--add", "LeftHand@0.5:0.7", "-o", str(with_hand)]).exit_code == 0
+    n_feet = len(json.loads(_cli(["constraints", str(doc), "--json"]).stdout)["constraints"])
+    assert n_feet >= 8
+
+    out = tmp_path / "out.npz"
+    r = _cli(["constraints", str(with_hand), "--detect", "--contact-tolerance", "0.001", "-o", str(out)])
+    assert r.exit_code == 0, r.stderr
+    lines = _warnings(r)
+    assert len(lines) == 1, lines
+    assert "found no contact on LeftFoot, LeftToeBase, RightFoot, RightToeBase" in lines[0]
+    assert f"removed the {n_feet} constraints they had, kept the 1 on other joints" in lines[0]
+    rows = json.loads(_cli(["constraints", str(out), "--json"]).stdout)["constraints"]
+    assert [c["joint"] for c in rows] == ["LeftHand"]
+
+    r = _cli(["constraints", str(with_hand), "--detect", "--contact-joints", "Head", "-o", str(out), "--force"])
+    lines = _warnings(r)
+    assert len(lines) == 1 and "found no contact on Head" in lines[0], lines
+    assert f"there were none on them, kept the {n_feet + 1} on other joints" in lines[0]
+    assert len(json.loads(_cli(["constraints", str(out), "--json"]).stdout)["constraints"]) == n_feet + 1
+
+    # a detection that finds something, on the default joints, says nothing
+    r = _cli(["constraints", str(with_hand), "--detect", "-o", str(out), "--force"])
+    assert r.exit_code == 0 and _warnings(r) == [], r.stderr
