@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 
@@ -144,3 +145,85 @@ def test_a_detection_that_finds_nothing_says_what_it_removed_and_kept(tmp_path):
     # a detection that finds something, on the default joints, says nothing
     r = _cli(["constraints", str(with_hand), "--detect", "-o", str(out), "--force"])
     assert r.exit_code == 0 and _warnings(r) == [], r.stderr
+
+
+def _with_box(m, labels, carrier, spot, resting=0.6):
+    """The marker clip ``m`` with a box: 4 markers (``labels``) on the
+    corners of its base, a rigid set 0.25 x 0.18 figure heights, resting on
+    the floor at ``spot`` (figure heights beside the figure's start, across
+    its up axis) for the first ``resting`` share of the frames the figure
+    (its ``carrier`` markers) is seen in, then carried
+    0.1 figure heights under the mean of the ``carrier`` markers (the hands,
+    or the pelvis of a lower-body set)."""
+    from dataclasses import replace
+
+    from staggered_cli.contacts import up_direction
+
+    P, H = np.asarray(m.points), m.figure_height()
+    up = up_direction(P, H)
+    side = np.roll(np.abs(up), 1)  # a horizontal axis
+    h = P @ up
+    floor = np.nanpercentile(np.nanmin(np.where(np.isfinite(h), h, np.inf), axis=1), 5)
+    seen = np.flatnonzero(np.isfinite(P).all(axis=2).any(axis=1))  # (the BTS walk starts with gaps)
+    start = np.nanmean(P[seen[: len(P) // 10]].reshape(-1, 3), axis=0)
+    start = start - (start @ up) * up
+    corners = np.array([[a, b] for a in (-0.125, 0.125) for b in (-0.09, 0.09)]) * H
+    ahead = np.cross(up, side)
+    offsets = corners[:, :1] * side + corners[:, 1:] * ahead  # (4, 3)
+    idx = [m.labels.index(c) for c in carrier]
+    carried = np.flatnonzero(np.isfinite(P[:, idx]).all(axis=(1, 2)))  # frames the figure is seen in
+    T, cut = len(P), int(carried[int(resting * len(carried))])
+    centre = np.empty((T, 3))
+    centre[:cut] = start + spot * H * side + (floor + 0.01 * H) * up
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # carriers unseen: the box is too
+        hold = np.nanmean(P[cut:, idx], axis=1) - 0.1 * H * up
+    centre[cut:] = hold
+    box = centre[:, None] + offsets[None]
+    return replace(m, labels=tuple(m.labels) + tuple(labels), points=np.concatenate([P, box], axis=1))
+
+
+def test_default_contact_markers_are_the_feet_not_a_carried_box():
+    """A box that rests on the floor most of the clip has markers among the
+    lowest of the set: the old rule (the lowest median heights) put default
+    contacts on it, and a box resting far from the figure turned its up
+    axis (the widest extent) too.  The subject prefix (a box labelled
+    Box:C1 or BOX1 beside Male:LTOE, or Box:C1 beside an unprefixed set,
+    resting right beside the feet) and, without prefixes, the figure's
+    place (a box resting 2 figure heights beside the start) keep the
+    defaults on the feet: the same markers as without the box, on each dev
+    C3D."""
+    from dataclasses import replace
+
+    from staggered_cli.contacts import _lowest_of, _median_height, contact_joints, up_direction
+
+    from .conftest import dev_motion
+
+    cmu = dev_motion("cmu_85_12_breakdance_long.c3d")
+    bare = replace(cmu, labels=tuple(n.split(":")[1] for n in cmu.labels))
+    org, bts = dev_motion("c3dorg_sample01_Eb015pi_walk.c3d"), dev_motion("ezc3d_BTS_walk_gaps.c3d")
+    box4 = ("C1", "C2", "C3", "C4")
+    cases = [  # clip, box labels, carried under, resting where
+        (cmu, tuple(f"Box:{c}" for c in box4), ("Male:LWRA", "Male:RWRA"), 0.3),
+        (cmu, tuple(f"BOX{c}" for c in box4), ("Male:LFIN", "Male:RFIN"), 0.3),
+        (org, tuple(f"Box:{c}" for c in box4), ("PV1", "PV2", "PV3", "pv4"), 0.3),
+        (bare, tuple(f"BOX{c}" for c in box4), ("LWRA", "RWRA"), 2.0),
+        (bts, tuple(f"box {c}" for c in box4), ("r asis", "l asis", "sacrum"), 2.0),
+    ]
+    feet = {
+        id(cmu): [f"Male:{s}{m}" for s in "LR" for m in ("ANK", "HEE", "MT5", "TOE")],
+        id(bare): [f"{s}{m}" for s in "LR" for m in ("ANK", "HEE", "MT5", "TOE")],
+        id(org): [f"{s}FT{i}" for s in "RL" for i in (1, 2, 3)],
+        id(bts): ["r heel", "r met", "l heel", "l met"],
+    }
+    for m, labels, carrier, spot in cases:
+        assert sorted(contact_joints(m)) == sorted(feet[id(m)])
+        boxed = _with_box(m, labels, carrier, spot)
+        # the hard case: the old rule, on all markers, takes the box
+        P, H = boxed.points, boxed.figure_height()
+        old = _lowest_of(_median_height(np.array(P), up_direction(P, H)), H)
+        assert set(range(len(m.labels), len(boxed.labels))) & set(old.tolist()), labels
+        assert sorted(contact_joints(boxed)) == sorted(feet[id(m)]), (labels, contact_joints(boxed))
+        # and the contacts are those without the box (the figure's height,
+        # which scales the tolerance, is measured without it too)
+        assert detect_contacts(boxed) == detect_contacts(m), labels

@@ -51,7 +51,10 @@ def _read_motion(path: str):
 @click.option(
     "--contact-joints",
     metavar="A,B,...",
-    help="Joints (BVH) or marker labels (C3D) to find contacts on. Default: feet and toes, or the lowest markers.",
+    help=(
+        "Joints (BVH) or marker labels (C3D) to find contacts on. "
+        "Default: feet and toes, or the lowest markers of the body."
+    ),
 )
 @click.option(
     "--smoothing",
