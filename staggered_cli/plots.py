@@ -33,9 +33,16 @@ the world axis along which the figure's per-frame extent is largest (median
 over frames: a standing, walking or dancing figure is taller than it is wide
 or deep), pointing to the side where the figure lies (capture volumes put the
 floor at zero).  Y for the BVH files and BTS C3D, Z for the other C3D files.
-The side view looks across the direction of travel (or, for a figure that
-stays in place, across its narrowest horizontal spread, which is its depth);
-the front view looks along it.
+The preview strip turns each panel's camera with the figure's heading at
+its time (:func:`headings`): the side view looks across the heading, the
+front view along it (from the front).  The heading is the left-to-right
+direction of the rigid left/right pairs at the figure's middle height (the
+hips of a skeleton, the pelvis markers of a marker set) crossed with up;
+without such pairs, the direction of travel; for a figure that stays in
+place, the clip's own camera.  The clip's own camera (the animated
+preview's) looks across the direction of travel from the first frame to
+the last (or, for a figure that stays in place, across its narrowest
+horizontal spread, which is its depth).
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import quat
 from .errors import UsageError
 
 if TYPE_CHECKING:
@@ -771,6 +779,7 @@ class _Stick:
     left: np.ndarray
     frame_time: float
     pose_t: np.ndarray | None
+    names: tuple[str, ...] = ()
 
     @property
     def markers(self) -> bool:
@@ -790,8 +799,8 @@ def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
     if isinstance(subject, Document):
         pose_t = subject.pose_t
         subject = bake(subject)
-    pts, bones, left, _ = _figure_points(subject)
-    return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t)
+    pts, bones, left, names = _figure_points(subject)
+    return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t, names)
 
 
 @dataclass(frozen=True)
@@ -844,6 +853,110 @@ def view_axes(points: np.ndarray) -> _View:
     h = h[np.isfinite(h)]
     floor, top = (float(h.min()), float(h.max())) if h.size else (0.0, size)  # no marker ever seen
     return _View(up, forward, lateral, size, floor, top)
+
+
+#: Pairs of left and right points whose distance varies by less than this
+#: share (standard deviation over median) are rigid across the body (hips,
+#: pelvis markers): their left-to-right direction is the figure's.
+RIGID_PAIR = 0.05
+#: The heading at a time is measured over this many seconds around it
+#: (against marker noise; a spinning dancer turns a quarter in 0.25 s:
+#: on the dev dances and walks, the side panels show the hips at a median
+#: 2-13 % of their width in the front panels with it, 15-25 % with 1 s);
+#: the direction of travel (without sides) over the longer window, two
+#: steps of a slow walk, so that the pelvis' sway from step to step cancels.
+HEADING_WINDOW = 0.25
+TRAVEL_WINDOW = 2.0
+
+
+def side_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
+    """(left, right) index pairs of points whose names mirror each other:
+    ``LeftUpLeg``/``RightUpLeg``, ``UpperLeg_L``/``UpperLeg_R``, ``l asis``/
+    ``r asis``, ``Male:LFWT``/``Male:RFWT`` (a leading L or R before capitals,
+    when the mirrored label exists)."""
+    from .names import base_name, side, tokens
+
+    bases = [base_name(n) for n in names]
+    have = set(bases)
+    keys: dict[tuple[str, tuple[str, ...]], int] = {}
+    for j, (n, b) in enumerate(zip(names, bases, strict=True)):
+        where = side(n)
+        if where:
+            key = tuple(t for t in tokens(n) if t not in ("l", "r", "left", "right"))
+        elif len(b) > 1 and b[0] in "LR" and b[1:].isupper() and ("RL"[b[0] == "R"] + b[1:]) in have:
+            where, key = ("left" if b[0] == "L" else "right"), (b[1:],)
+        else:
+            continue
+        keys.setdefault((where, key), j)
+    return [(j, keys[("right", k)]) for (w, k), j in keys.items() if w == "left" and ("right", k) in keys]
+
+
+def headings(stick: _Stick, frames: np.ndarray, view: _View) -> np.ndarray:
+    """The figure's forward direction (F, 3), unit and level, at each of
+    ``frames``: across the rigid left-right pairs nearest the figure's
+    centre in height (the hips, the pelvis markers; :data:`RIGID_PAIR`), their
+    left-to-right direction crossed with up, averaged over
+    :data:`HEADING_WINDOW` around the frame; without such pairs (or where
+    none is seen), the direction of travel over :data:`TRAVEL_WINDOW`; for a figure that stays
+    in place, the clip's own view (:func:`view_axes`)."""
+    frames = np.asarray(frames, dtype=int)
+    pts, up, size = stick.points, view.up, view.size
+    T = len(pts)
+    half = max(1, round(0.5 * HEADING_WINDOW / stick.frame_time))
+    lo, hi = np.clip(frames - half, 0, T - 1), np.clip(frames + half, 0, T - 1)
+    lateral = np.full((len(frames), 3), np.nan)
+    pairs = side_pairs(stick.names)
+    if pairs:
+        L, R = np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
+        diff = pts[:, L] - pts[:, R]  # (T, P, 3)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # pairs never seen
+            dist = quat.norm(diff)
+            med = np.nanmedian(dist, axis=0)
+            rigid = (med > 0.03 * size) & (np.nanstd(dist, axis=0) < RIGID_PAIR * med)
+            height = np.nanmedian((pts[:, L] + pts[:, R]) @ up, axis=0) / 2
+        if rigid.any():
+            # the pairs nearest the figure's centre in height: the hips or pelvis
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                centre = np.nanmedian(pts @ up)
+            off = np.where(rigid, np.abs(height - centre), np.inf)
+            low = rigid & (off <= off.min() + 0.15 * size)
+            flat = diff[:, low] - (diff[:, low] @ up)[..., None] * up  # (T, P', 3)
+            summed = np.where(np.isfinite(flat), flat, 0.0).sum(axis=1)  # (T, 3)
+            seen = np.isfinite(flat).all(axis=2).any(axis=1)
+            csum = np.concatenate([np.zeros((1, 3)), np.cumsum(summed, axis=0)])
+            cseen = np.concatenate([[0], np.cumsum(seen)])
+            got = cseen[hi + 1] - cseen[lo] > 0
+            lateral[got] = (csum[hi + 1] - csum[lo])[got]
+    fwd = np.cross(lateral, up)
+    # where no side is seen: the direction of travel over the window
+    need = ~(quat.norm(fwd) > 1e-9 * size)
+    if need.any():
+        ok = np.isfinite(pts).all(axis=2)
+        count = np.maximum(ok.sum(axis=1), 1)
+        centre = np.where(ok[..., None], pts, 0.0).sum(axis=1) / count[:, None]
+        centre[~ok.any(axis=1)] = np.nan
+        wide = max(1, round(0.5 * TRAVEL_WINDOW / stick.frame_time))
+        for k in np.flatnonzero(need):  # (a few panels)
+            c = centre[max(frames[k] - wide, 0) : frames[k] + wide + 1]
+            c = c[np.isfinite(c).all(axis=1)]
+            if len(c) >= 2:
+                move = c[-1] - c[0]
+                move = move - (move @ up) * up
+                if np.linalg.norm(move) > 0.05 * size:
+                    fwd[k] = move
+    bad = ~(quat.norm(fwd) > 1e-9 * size)
+    fwd[bad] = view.forward
+    fwd = fwd - np.outer(fwd @ up, up)
+    return fwd / quat.norm(fwd)[:, None]
+
+
+def turned(view: _View, forward: np.ndarray) -> _View:
+    """``view`` looking across (side) and along (front) ``forward``."""
+    from dataclasses import replace
+
+    return replace(view, forward=forward, lateral=np.cross(view.up, forward))
 
 
 def _parse_at(at: str, count: int | None, n_poses: int | None) -> tuple[str, int | None]:
@@ -1030,17 +1143,19 @@ def preview_figure(
     fig = _figure((min(12.0, n * (panel + 0.1) + 0.4), min(2 * panel * aspect + extra, 7.0)))
     axes = fig.subplots(2, n, squeeze=False)
     colors = [(_PRIMARY, _PRIMARY_LIGHT), (_SECOND, _SECOND_LIGHT)]
+    ahead = headings(sticks[0], sticks[0].at(times), view)
     for col, (t, lab) in enumerate(zip(times, labels, strict=True)):
+        panel_view = turned(view, ahead[col])
         for row, which in enumerate(("side", "front")):
             ax = axes[row, col]
             cx = None
             for i, (s, (dark, light)) in enumerate(zip(sticks, colors, strict=False)):
                 frame = int(s.at([t])[0])
-                _draw_stick(ax, s, frame, view, which, dark, light, ms=2.5, under=i > 0)
+                _draw_stick(ax, s, frame, panel_view, which, dark, light, ms=2.5, under=i > 0)
                 if cx is None:
-                    cx = _center(view.project(s.points[frame], which)[0])
+                    cx = _center(panel_view.project(s.points[frame], which)[0])
             ax.axhline(view.floor, color="0.6", lw=0.8, zorder=1)
-            _frame_axes(ax, view, cx or 0.0)
+            _frame_axes(ax, panel_view, cx or 0.0)
             ax.set_xticks([])
             ax.set_yticks([])
             if row == 0:
