@@ -190,7 +190,8 @@ def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.nda
     from .skeleton import body_joints, end_site_positions
 
     if not isinstance(motion, BvhMotion):
-        return motion.points, np.zeros((0, 2), dtype=int), np.zeros(0, dtype=bool), tuple(motion.labels)
+        bones, left = marker_bones(motion.labels, motion.points)
+        return motion.points, bones, left, tuple(motion.labels)
     sk = motion.skeleton
     wr, wp = motion.world()
     ends = end_site_positions(sk, wr, wp)
@@ -210,6 +211,46 @@ def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.nda
         left.append(bool(_LEFT.search(sk.names[p])))
     names = tuple(sk.names[j] for j in body) + tuple(f"{sk.names[sk.end_parents[e]]}.end" for e in ends_kept)
     return pts, np.array(bones, dtype=int).reshape(-1, 2), np.array(left, dtype=bool), names
+
+
+def marker_bones(labels: Sequence[str], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lines to draw between the markers of a set (B, 2), and whether each
+    is on the figure's left (B,): the tree of the most rigid pairs
+    (:func:`~staggered_cli.ops.marker_chain.rigid_tree`, the tree a
+    randomize or retime of all markers moves them by), so that each body
+    segment's markers are joined and the segments joined where they meet."""
+    from .ops.marker_chain import rigid_tree
+
+    parents = rigid_tree(points)
+    child = np.flatnonzero(parents >= 0)
+    bones = np.column_stack([parents[child], child]).astype(int).reshape(-1, 2)
+    if len(bones):  # the tree must join every marker: not with lines across the body
+        from .motion import MarkerMotion
+
+        size = MarkerMotion(tuple(labels), points, 1.0).figure_height()
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a pair never seen together
+            length = np.nanmedian(quat.norm(points[:, bones[:, 0]] - points[:, bones[:, 1]]), axis=0)
+        bones = bones[~(length > LONGEST_LINE * size)]
+    sides = _sides(labels)
+    left = np.array([sides[a] == "left" and sides[b] == "left" for a, b in bones], dtype=bool)
+    return bones, left
+
+
+#: Lines between markers longer than this share of the figure height (median
+#: over the clip) are not drawn: longer than any segment of the body (thigh
+#: and shank are about 0.25), they join markers the rigid tree links only
+#: because it must join them all (c7 to a knee on the BTS walk, 0.73; one
+#: thigh to the other on the c3d.org walk, 0.52).
+LONGEST_LINE = 0.45
+
+
+def _sides(names: Sequence[str]) -> list[str]:
+    """``'left'``, ``'right'`` or ``''`` for each name, as :func:`side_pairs` reads them."""
+    out = [""] * len(names)
+    for a, b in side_pairs(names):
+        out[a], out[b] = "left", "right"
+    return out
 
 
 def _up(points: np.ndarray, size: float) -> np.ndarray:
@@ -780,10 +821,7 @@ class _Stick:
     frame_time: float
     pose_t: np.ndarray | None
     names: tuple[str, ...] = ()
-
-    @property
-    def markers(self) -> bool:
-        return len(self.bones) == 0
+    markers: bool = False  # a C3D marker set (drawn as dots, lines between them)
 
     def at(self, times: np.ndarray) -> np.ndarray:
         """Frame indices nearest ``times`` (seconds)."""
@@ -793,6 +831,7 @@ class _Stick:
 
 def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
     from .document import Document
+    from .motion import BvhMotion
     from .ops.bake import bake
 
     pose_t = None
@@ -800,7 +839,8 @@ def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
         pose_t = subject.pose_t
         subject = bake(subject)
     pts, bones, left, names = _figure_points(subject)
-    return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t, names)
+    markers = not isinstance(subject, BvhMotion)
+    return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t, names, markers)
 
 
 @dataclass(frozen=True)
@@ -999,11 +1039,13 @@ def _draw_stick(
     wider and behind, so that where both agree the first one shows on top
     with a coloured edge."""
     lw, z = (4.0, 2) if under else (1.5, 3)
+    if stick.markers:  # lines between markers: thinner, the dots are the data
+        lw *= 0.5
     from matplotlib.collections import LineCollection
 
     x, y = view.project(stick.points[frame], which)
     bones = None
-    if not stick.markers:
+    if len(stick.bones):
         seg = np.stack(
             [
                 np.column_stack([x[stick.bones[:, 0]], y[stick.bones[:, 0]]]),
@@ -1019,7 +1061,8 @@ def _draw_stick(
     return bones, dots
 
 
-def _update_stick(bones, dots, stick: _Stick, frame: int, view: _View, which: str) -> float:
+def _update_stick(bones, dots, stick: _Stick, frame: int, view: _View, which: str) -> np.ndarray:
+    """Moves the artists of :func:`_draw_stick` to ``frame``; the drawn x."""
     x, y = view.project(stick.points[frame], which)
     if bones is not None:
         seg = np.stack(
@@ -1031,7 +1074,7 @@ def _update_stick(bones, dots, stick: _Stick, frame: int, view: _View, which: st
         )
         bones.set_segments(seg)
     dots.set_data(x, y)
-    return _center(x)
+    return x
 
 
 def _center(x: np.ndarray) -> float:
@@ -1052,8 +1095,21 @@ def _floor_marks(ax, view: _View, stick: _Stick, which: str) -> None:
     ax.vlines(np.arange(lo, hi + 1) * step, view.floor - 0.05 * view.size, view.floor, colors="0.6", lw=0.8, zorder=1)
 
 
-def _frame_axes(ax, view: _View, cx: float) -> None:
+def _frame_axes(ax, view: _View, cx: float, x: np.ndarray | None = None) -> None:
+    """Limits of a panel centred on ``cx``, 1.2 figure heights wide; moved
+    (or, for a figure lying wider than that, widened) so that every drawn
+    point ``x`` is inside with a margin: a flip must not cut a foot off."""
     half = 0.6 * view.size
+    if x is not None:
+        x = np.asarray(x, dtype=float)
+        x = x[np.isfinite(x)]
+        if len(x):
+            pad = 0.08 * view.size
+            lo, hi = float(x.min()) - pad, float(x.max()) + pad
+            if hi - lo <= 2 * half:
+                cx = min(max(cx, hi - half), lo + half)
+            else:
+                cx, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     ax.set_xlim(cx - half, cx + half)
     pad = 0.06 * view.size
     ax.set_ylim(view.floor - pad, max(view.top, view.floor + view.size) + pad)
@@ -1148,14 +1204,15 @@ def preview_figure(
         panel_view = turned(view, ahead[col])
         for row, which in enumerate(("side", "front")):
             ax = axes[row, col]
-            cx = None
+            cx, drawn = None, []
             for i, (s, (dark, light)) in enumerate(zip(sticks, colors, strict=False)):
                 frame = int(s.at([t])[0])
                 _draw_stick(ax, s, frame, panel_view, which, dark, light, ms=2.5, under=i > 0)
+                drawn.append(panel_view.project(s.points[frame], which)[0])
                 if cx is None:
-                    cx = _center(panel_view.project(s.points[frame], which)[0])
+                    cx = _center(drawn[0])
             ax.axhline(view.floor, color="0.6", lw=0.8, zorder=1)
-            _frame_axes(ax, panel_view, cx or 0.0)
+            _frame_axes(ax, panel_view, cx or 0.0, np.concatenate(drawn))
             ax.set_xticks([])
             ax.set_yticks([])
             if row == 0:
@@ -1241,12 +1298,11 @@ def preview_gif(
     names = " vs ".join(s.name for s in sticks)
 
     def render(t: float, lab: str):
-        centers: dict[int, float] = {}
+        drawn: dict[int, list[np.ndarray]] = {}
         for ax, which, s, bones, dots in artists:
-            cx = _update_stick(bones, dots, s, int(s.at([t])[0]), view, which)
-            centers.setdefault(id(ax), cx)
+            drawn.setdefault(id(ax), []).append(_update_stick(bones, dots, s, int(s.at([t])[0]), view, which))
         for ax in axes:
-            _frame_axes(ax, view, centers[id(ax)])
+            _frame_axes(ax, view, _center(drawn[id(ax)][0]), np.concatenate(drawn[id(ax)]))
         title.set_text(f"{names} · {lab.replace(chr(10), ' · ')}")
         fig.canvas.draw()
         rgb = Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3])

@@ -482,3 +482,28 @@ def test_preview_cameras_turn_with_the_heading(name, pairs, most_side):
     ang = np.degrees(np.arctan2(lr @ view.lateral, lr @ view.forward))
     spread_deg = np.ptp(np.unwrap(np.radians(ang)) * 180 / np.pi)
     assert spread_deg > (150 if "131_02" not in name else 20), spread_deg
+
+
+def test_c3d_preview_joins_markers_and_keeps_them_in_their_panels():
+    """A marker set is drawn with lines along its rigid tree (no line longer
+    than the body's segments), and on the breakdance's flips every marker
+    stays inside its panel: centred on the median marker (as before), 2 of
+    the 24 panels cut markers off, by up to 0.1 figure heights."""
+    from matplotlib.collections import LineCollection
+
+    motion = load_input(str(mocap("cmu_85_12_breakdance_long.c3d")))
+    fig = plots.preview_figure(motion, at="frames", count=12)
+    size = plots.view_axes(motion.points).size
+    bones, _ = plots.marker_bones(motion.labels, motion.points)
+    assert len(bones) >= len(motion.labels) - 3  # nearly every marker joined (40 edges join 41)
+    cut_before = 0
+    for ax in fig.axes:
+        lines = [c for c in ax.collections if isinstance(c, LineCollection)]
+        assert len(lines) == 1 and len(lines[0].get_segments()) == len(bones)
+        seg = np.array(lines[0].get_segments())  # (B, 2, 2) as drawn: side or front
+        assert np.nanmax(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)) <= 0.55 * size  # a limb, not a leap
+        x = np.asarray(ax.lines[0].get_xdata(), dtype=float)
+        lo, hi = ax.get_xlim()
+        assert x.min() - lo >= 0.05 * size and hi - x.max() >= 0.05 * size, (x.min() - lo, hi - x.max())
+        cut_before += np.max(np.abs(x - np.median(x))) > 0.6 * size
+    assert cut_before >= 1  # the flips this checks are there
