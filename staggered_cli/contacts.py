@@ -254,10 +254,11 @@ def body_markers(labels, points: np.ndarray) -> np.ndarray:
             idx = np.array(max(groups.values(), key=len), dtype=int)
     if len(idx) < 3:
         return idx
-    pts = points[:, idx]
-    seen = np.isfinite(pts).all(axis=2)  # (T, n)
-    count = seen.sum(axis=1)
-    pts = pts[count >= max(2, count.max() // 2)]
+    count = np.isfinite(points[:, idx]).all(axis=2).sum(axis=1)  # (T,)
+    frames = np.flatnonzero(count >= max(2, count.max() // 2))
+    # evenly spread frames are enough for a median distance
+    frames = frames[np.unique(np.linspace(0, len(frames) - 1, min(len(frames), _BODY_FRAMES)).astype(int))]
+    pts = points[frames[:, None], idx[None, :]]  # (T', n, 3)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # markers never seen there
         centre = np.nanmedian(pts, axis=1)  # (T', 3)
@@ -265,6 +266,10 @@ def body_markers(labels, points: np.ndarray) -> np.ndarray:
         typical = np.nanmedian(far)
     near = idx[~(far > BODY_REACH * typical)]
     return near if len(near) else idx
+
+
+#: Frames (evenly spread) :func:`body_markers` measures distances on.
+_BODY_FRAMES = 500
 
 
 def _body(motion: MarkerMotion) -> tuple[np.ndarray | None, float]:
