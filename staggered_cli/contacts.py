@@ -7,7 +7,11 @@ Detection
     ...) and lie in the lower half of the figure, together with the lowest
     joints: those whose median height is within :data:`LOWEST_SHARE` of the
     figure height of the lowest joint's.  For a C3D marker set, the lowest
-    markers by the same rule (heel, toe, ankle and metatarsal markers).
+    markers of the body by the same rule (heel, toe, ankle and metatarsal
+    markers): markers of a carried or nearby object (another subject
+    prefix, or far from the figure most of the time) are left out first,
+    and the figure's up axis and height are measured without them (see
+    :func:`body_markers`).
 
     Height is measured along the *up axis*, found without assuming Y or Z:
     the world axis along which the figure's per-frame extent is largest
@@ -44,6 +48,8 @@ from __future__ import annotations
 
 import logging
 import re
+import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -165,14 +171,9 @@ def _median_height(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.nanmedian(h, axis=0)
 
 
-def _lowest(points: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
-    """Indices of the points whose median height is within LOWEST_SHARE of
-    the figure height of the lowest one's."""
-    return _lowest_of(_median_height(points, up), height)
-
-
 def _lowest_of(h: np.ndarray, height: float) -> np.ndarray:
-    """:func:`_lowest` of the median heights ``h`` (n,)."""
+    """Indices of the median heights ``h`` (n,) within LOWEST_SHARE of the
+    figure height of the lowest one."""
     return np.flatnonzero(h <= np.min(h) + LOWEST_SHARE * height)
 
 
@@ -210,13 +211,85 @@ def contact_joints(
         lowest = {int(body[j]) for j in _lowest_of(h[body], height)}
         chosen = [j for j in sorted(by_name | lowest) if _has_chain(motion.skeleton, j)]
     else:
-        up = up_direction(pos, height)
-        chosen = sorted(int(j) for j in _lowest(pos, up, height))
+        body, height = _body(motion)
+        body = np.arange(len(all_names)) if body is None else body
+        up = up_direction(pos, height, body)  # a prop beside the figure must not turn it
+        chosen = sorted(int(body[j]) for j in _lowest_of(_median_height(pos[:, body], up), height))
         shared = [all_names[j] for j in chosen if motion.labels.count(all_names[j]) > 1]
         if shared:  # a constraint names its marker: it must name one
             log.warning("no contact detection on marker %r: its label is shared by other markers", shared[0])
             chosen = [j for j in chosen if all_names[j] not in shared]
     return tuple(all_names[j] for j in chosen)
+
+
+def body_markers(labels, points: np.ndarray) -> np.ndarray:
+    """Indices of the markers on the figure's body, the ones its default
+    contacts are chosen from (and its up axis found on): a marker set may
+    also hold the markers of a carried or nearby object (a box, a prop),
+    which can rest lower than the feet (on the floor while the figure walks
+    elsewhere) and would take every default contact.  Two kinds of evidence:
+
+    * the subject prefix: when the labels carry more than one prefix
+      (``Male:LTOE`` beside ``Box:C1``, or beside unprefixed ``BOX1``), the
+      body is the largest group (no choice on a tie: two subjects);
+    * staying with the figure: in the frames where most markers are seen,
+      a marker whose median distance from the figure's centre (each frame's
+      median marker) is more than :data:`BODY_REACH` times the typical
+      marker's (the median of those distances) is not on it.  The scale is
+      the markers' own, not the figure height: a prop far away makes the
+      figure look taller.
+
+    All markers when these would leave none.
+    """
+    from .names import base_name
+
+    labels = list(labels)
+    idx = np.arange(len(labels))
+    groups: dict[str, list[int]] = {}
+    for j, name in enumerate(labels):
+        groups.setdefault(name[: len(name) - len(base_name(name))], []).append(j)
+    if len(groups) > 1:
+        sizes = sorted((len(g) for g in groups.values()), reverse=True)
+        if sizes[0] > sizes[1]:
+            idx = np.array(max(groups.values(), key=len), dtype=int)
+    if len(idx) < 3:
+        return idx
+    count = np.isfinite(points[:, idx]).all(axis=2).sum(axis=1)  # (T,)
+    frames = np.flatnonzero(count >= max(2, count.max() // 2))
+    # evenly spread frames are enough for a median distance
+    frames = frames[np.unique(np.linspace(0, len(frames) - 1, min(len(frames), _BODY_FRAMES)).astype(int))]
+    pts = points[frames[:, None], idx[None, :]]  # (T', n, 3)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # markers never seen there
+        centre = np.nanmedian(pts, axis=1)  # (T', 3)
+        far = np.nanmedian(quat.norm(pts - centre[:, None]), axis=0)  # (n,), NaN for a marker not seen
+        typical = np.nanmedian(far)
+    near = idx[~(far > BODY_REACH * typical)]
+    return near if len(near) else idx
+
+
+#: Frames (evenly spread) :func:`body_markers` measures distances on.
+_BODY_FRAMES = 500
+
+
+def _body(motion: MarkerMotion) -> tuple[np.ndarray | None, float]:
+    """:func:`body_markers` of a clip (None for all of them) and the height
+    of the figure they make (that of the clip when they are all of it)."""
+    body = body_markers(motion.labels, motion.points)
+    if len(body) == len(motion.labels):
+        return None, float(motion.figure_height())
+    own = replace(motion, labels=tuple(motion.labels[j] for j in body), points=motion.points[:, body])
+    return body, float(own.figure_height())
+
+
+#: A marker whose median distance from the figure's centre is more than this
+#: many times the typical marker's is not on the body (see
+#: :func:`body_markers`).  Body markers measure at most 3.5 on the dev C3D
+#: files (c7 on the BTS walk, whose markers crowd the pelvis and legs; 2.4
+#: for a toe of the breakdance, 1.8 on the lower-body c3d.org walk): a prop
+#: must rest away from the figure (about 1 to 2 figure heights) for most of
+#: the clip to be told apart this way.
+BODY_REACH = 5.0
 
 
 def _has_chain(skeleton, j: int) -> bool:
@@ -296,8 +369,12 @@ def detect_contacts(
     if not names:
         return ()
     names, pos, height = effector_positions(motion, names)
-    body = body_joints(motion.skeleton) if isinstance(motion, BvhMotion) else None
-    up = up_direction(effector_positions(motion)[1], height, body)
+    every = effector_positions(motion)[1]
+    if isinstance(motion, BvhMotion):
+        body = body_joints(motion.skeleton)
+    else:
+        body, height = _body(motion)
+    up = up_direction(every, height, body)
     with np.errstate(invalid="ignore"):
         h = pos @ up  # (T, n)
         floor = np.array([np.percentile(c[np.isfinite(c)], 5) if np.isfinite(c).any() else np.nan for c in h.T])
@@ -312,3 +389,37 @@ def detect_contacts(
             found.append((s, n, e, name))
     found.sort()
     return tuple(Constraint(name, s * ft, e * ft) for s, _, e, name in found)
+
+
+def never_rested(names, constraints) -> tuple[str, ...]:
+    """The ``names`` (in their order) that no constraint of ``constraints`` is on."""
+    on = {c.joint for c in constraints}
+    return tuple(n for n in names if n not in on)
+
+
+def rest_rule(min_duration: float, tolerance: float) -> str:
+    """The detector's rule in words, for a message: what "at rest" means."""
+    return (
+        f"never still within {100 * tolerance:g} % of the figure height for {min_duration:g} s "
+        "near the lowest level each reaches"
+    )
+
+
+def warn_never_rested(
+    names, constraints, *, min_duration: float = DEFAULT_MIN_CONTACT, tolerance: float = DEFAULT_TOLERANCE
+) -> tuple[str, ...]:
+    """One warning line naming the chosen joints or markers ``names`` that
+    never come to rest (no constraint in ``constraints``): without it a
+    ``--contact-joints`` that names a heel which never touches gives no
+    constraint and no word.  Returns those names."""
+    idle = never_rested(names, constraints)
+    if idle:
+        share = "all" if len(idle) == len(names) else f"{len(idle)} of the"
+        log.warning(
+            "no contact on %s (%s %d named): %s (see --contact-tolerance, --min-contact)",
+            ", ".join(idle),
+            share,
+            len(names),
+            rest_rule(min_duration, tolerance),
+        )
+    return idle

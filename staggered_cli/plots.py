@@ -33,9 +33,16 @@ the world axis along which the figure's per-frame extent is largest (median
 over frames: a standing, walking or dancing figure is taller than it is wide
 or deep), pointing to the side where the figure lies (capture volumes put the
 floor at zero).  Y for the BVH files and BTS C3D, Z for the other C3D files.
-The side view looks across the direction of travel (or, for a figure that
-stays in place, across its narrowest horizontal spread, which is its depth);
-the front view looks along it.
+The preview strip turns each panel's camera with the figure's heading at
+its time (:func:`headings`): the side view looks across the heading, the
+front view along it (from the front).  The heading is the left-to-right
+direction of the rigid left/right pairs at the figure's middle height (the
+hips of a skeleton, the pelvis markers of a marker set) crossed with up;
+without such pairs, the direction of travel; for a figure that stays in
+place, the clip's own camera.  The clip's own camera (the animated
+preview's) looks across the direction of travel from the first frame to
+the last (or, for a figure that stays in place, across its narrowest
+horizontal spread, which is its depth).
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import quat
 from .errors import UsageError
 
 if TYPE_CHECKING:
@@ -182,7 +190,8 @@ def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.nda
     from .skeleton import body_joints, end_site_positions
 
     if not isinstance(motion, BvhMotion):
-        return motion.points, np.zeros((0, 2), dtype=int), np.zeros(0, dtype=bool), tuple(motion.labels)
+        bones, left = marker_bones(motion.labels, motion.points)
+        return motion.points, bones, left, tuple(motion.labels)
     sk = motion.skeleton
     wr, wp = motion.world()
     ends = end_site_positions(sk, wr, wp)
@@ -202,6 +211,46 @@ def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.nda
         left.append(bool(_LEFT.search(sk.names[p])))
     names = tuple(sk.names[j] for j in body) + tuple(f"{sk.names[sk.end_parents[e]]}.end" for e in ends_kept)
     return pts, np.array(bones, dtype=int).reshape(-1, 2), np.array(left, dtype=bool), names
+
+
+def marker_bones(labels: Sequence[str], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lines to draw between the markers of a set (B, 2), and whether each
+    is on the figure's left (B,): the tree of the most rigid pairs
+    (:func:`~staggered_cli.ops.marker_chain.rigid_tree`, the tree a
+    randomize or retime of all markers moves them by), so that each body
+    segment's markers are joined and the segments joined where they meet."""
+    from .ops.marker_chain import rigid_tree
+
+    parents = rigid_tree(points)
+    child = np.flatnonzero(parents >= 0)
+    bones = np.column_stack([parents[child], child]).astype(int).reshape(-1, 2)
+    if len(bones):  # the tree must join every marker: not with lines across the body
+        from .motion import MarkerMotion
+
+        size = MarkerMotion(tuple(labels), points, 1.0).figure_height()
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a pair never seen together
+            length = np.nanmedian(quat.norm(points[:, bones[:, 0]] - points[:, bones[:, 1]]), axis=0)
+        bones = bones[~(length > LONGEST_LINE * size)]
+    sides = _sides(labels)
+    left = np.array([sides[a] == "left" and sides[b] == "left" for a, b in bones], dtype=bool)
+    return bones, left
+
+
+#: Lines between markers longer than this share of the figure height (median
+#: over the clip) are not drawn: longer than any segment of the body (thigh
+#: and shank are about 0.25), they join markers the rigid tree links only
+#: because it must join them all (c7 to a knee on the BTS walk, 0.73; one
+#: thigh to the other on the c3d.org walk, 0.52).
+LONGEST_LINE = 0.45
+
+
+def _sides(names: Sequence[str]) -> list[str]:
+    """``'left'``, ``'right'`` or ``''`` for each name, as :func:`side_pairs` reads them."""
+    out = [""] * len(names)
+    for a, b in side_pairs(names):
+        out[a], out[b] = "left", "right"
+    return out
 
 
 def _up(points: np.ndarray, size: float) -> np.ndarray:
@@ -771,10 +820,8 @@ class _Stick:
     left: np.ndarray
     frame_time: float
     pose_t: np.ndarray | None
-
-    @property
-    def markers(self) -> bool:
-        return len(self.bones) == 0
+    names: tuple[str, ...] = ()
+    markers: bool = False  # a C3D marker set (drawn as dots, lines between them)
 
     def at(self, times: np.ndarray) -> np.ndarray:
         """Frame indices nearest ``times`` (seconds)."""
@@ -784,14 +831,16 @@ class _Stick:
 
 def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
     from .document import Document
+    from .motion import BvhMotion
     from .ops.bake import bake
 
     pose_t = None
     if isinstance(subject, Document):
         pose_t = subject.pose_t
         subject = bake(subject)
-    pts, bones, left, _ = _figure_points(subject)
-    return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t)
+    pts, bones, left, names = _figure_points(subject)
+    markers = not isinstance(subject, BvhMotion)
+    return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t, names, markers)
 
 
 @dataclass(frozen=True)
@@ -846,6 +895,110 @@ def view_axes(points: np.ndarray) -> _View:
     return _View(up, forward, lateral, size, floor, top)
 
 
+#: Pairs of left and right points whose distance varies by less than this
+#: share (standard deviation over median) are rigid across the body (hips,
+#: pelvis markers): their left-to-right direction is the figure's.
+RIGID_PAIR = 0.05
+#: The heading at a time is measured over this many seconds around it
+#: (against marker noise; a spinning dancer turns a quarter in 0.25 s:
+#: on the dev dances and walks, the side panels show the hips at a median
+#: 2-13 % of their width in the front panels with it, 15-25 % with 1 s);
+#: the direction of travel (without sides) over the longer window, two
+#: steps of a slow walk, so that the pelvis' sway from step to step cancels.
+HEADING_WINDOW = 0.25
+TRAVEL_WINDOW = 2.0
+
+
+def side_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
+    """(left, right) index pairs of points whose names mirror each other:
+    ``LeftUpLeg``/``RightUpLeg``, ``UpperLeg_L``/``UpperLeg_R``, ``l asis``/
+    ``r asis``, ``Male:LFWT``/``Male:RFWT`` (a leading L or R before capitals,
+    when the mirrored label exists)."""
+    from .names import base_name, side, tokens
+
+    bases = [base_name(n) for n in names]
+    have = set(bases)
+    keys: dict[tuple[str, tuple[str, ...]], int] = {}
+    for j, (n, b) in enumerate(zip(names, bases, strict=True)):
+        where = side(n)
+        if where:
+            key = tuple(t for t in tokens(n) if t not in ("l", "r", "left", "right"))
+        elif len(b) > 1 and b[0] in "LR" and b[1:].isupper() and ("RL"[b[0] == "R"] + b[1:]) in have:
+            where, key = ("left" if b[0] == "L" else "right"), (b[1:],)
+        else:
+            continue
+        keys.setdefault((where, key), j)
+    return [(j, keys[("right", k)]) for (w, k), j in keys.items() if w == "left" and ("right", k) in keys]
+
+
+def headings(stick: _Stick, frames: np.ndarray, view: _View) -> np.ndarray:
+    """The figure's forward direction (F, 3), unit and level, at each of
+    ``frames``: across the rigid left-right pairs nearest the figure's
+    centre in height (the hips, the pelvis markers; :data:`RIGID_PAIR`), their
+    left-to-right direction crossed with up, averaged over
+    :data:`HEADING_WINDOW` around the frame; without such pairs (or where
+    none is seen), the direction of travel over :data:`TRAVEL_WINDOW`; for a figure that stays
+    in place, the clip's own view (:func:`view_axes`)."""
+    frames = np.asarray(frames, dtype=int)
+    pts, up, size = stick.points, view.up, view.size
+    T = len(pts)
+    half = max(1, round(0.5 * HEADING_WINDOW / stick.frame_time))
+    lo, hi = np.clip(frames - half, 0, T - 1), np.clip(frames + half, 0, T - 1)
+    lateral = np.full((len(frames), 3), np.nan)
+    pairs = side_pairs(stick.names)
+    if pairs:
+        L, R = np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
+        diff = pts[:, L] - pts[:, R]  # (T, P, 3)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # pairs never seen
+            dist = quat.norm(diff)
+            med = np.nanmedian(dist, axis=0)
+            rigid = (med > 0.03 * size) & (np.nanstd(dist, axis=0) < RIGID_PAIR * med)
+            height = np.nanmedian((pts[:, L] + pts[:, R]) @ up, axis=0) / 2
+        if rigid.any():
+            # the pairs nearest the figure's centre in height: the hips or pelvis
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                centre = np.nanmedian(pts @ up)
+            off = np.where(rigid, np.abs(height - centre), np.inf)
+            low = rigid & (off <= off.min() + 0.15 * size)
+            flat = diff[:, low] - (diff[:, low] @ up)[..., None] * up  # (T, P', 3)
+            summed = np.where(np.isfinite(flat), flat, 0.0).sum(axis=1)  # (T, 3)
+            seen = np.isfinite(flat).all(axis=2).any(axis=1)
+            csum = np.concatenate([np.zeros((1, 3)), np.cumsum(summed, axis=0)])
+            cseen = np.concatenate([[0], np.cumsum(seen)])
+            got = cseen[hi + 1] - cseen[lo] > 0
+            lateral[got] = (csum[hi + 1] - csum[lo])[got]
+    fwd = np.cross(lateral, up)
+    # where no side is seen: the direction of travel over the window
+    need = ~(quat.norm(fwd) > 1e-9 * size)
+    if need.any():
+        ok = np.isfinite(pts).all(axis=2)
+        count = np.maximum(ok.sum(axis=1), 1)
+        centre = np.where(ok[..., None], pts, 0.0).sum(axis=1) / count[:, None]
+        centre[~ok.any(axis=1)] = np.nan
+        wide = max(1, round(0.5 * TRAVEL_WINDOW / stick.frame_time))
+        for k in np.flatnonzero(need):  # (a few panels)
+            c = centre[max(frames[k] - wide, 0) : frames[k] + wide + 1]
+            c = c[np.isfinite(c).all(axis=1)]
+            if len(c) >= 2:
+                move = c[-1] - c[0]
+                move = move - (move @ up) * up
+                if np.linalg.norm(move) > 0.05 * size:
+                    fwd[k] = move
+    bad = ~(quat.norm(fwd) > 1e-9 * size)
+    fwd[bad] = view.forward
+    fwd = fwd - np.outer(fwd @ up, up)
+    return fwd / quat.norm(fwd)[:, None]
+
+
+def turned(view: _View, forward: np.ndarray) -> _View:
+    """``view`` looking across (side) and along (front) ``forward``."""
+    from dataclasses import replace
+
+    return replace(view, forward=forward, lateral=np.cross(view.up, forward))
+
+
 def _parse_at(at: str, count: int | None, n_poses: int | None) -> tuple[str, int | None]:
     if at not in ("poses", "frames"):
         raise UsageError(f"--at must be 'poses' or 'frames N', got {at!r}")
@@ -886,11 +1039,13 @@ def _draw_stick(
     wider and behind, so that where both agree the first one shows on top
     with a coloured edge."""
     lw, z = (4.0, 2) if under else (1.5, 3)
+    if stick.markers:  # lines between markers: thinner, the dots are the data
+        lw *= 0.5
     from matplotlib.collections import LineCollection
 
     x, y = view.project(stick.points[frame], which)
     bones = None
-    if not stick.markers:
+    if len(stick.bones):
         seg = np.stack(
             [
                 np.column_stack([x[stick.bones[:, 0]], y[stick.bones[:, 0]]]),
@@ -906,7 +1061,8 @@ def _draw_stick(
     return bones, dots
 
 
-def _update_stick(bones, dots, stick: _Stick, frame: int, view: _View, which: str) -> float:
+def _update_stick(bones, dots, stick: _Stick, frame: int, view: _View, which: str) -> np.ndarray:
+    """Moves the artists of :func:`_draw_stick` to ``frame``; the drawn x."""
     x, y = view.project(stick.points[frame], which)
     if bones is not None:
         seg = np.stack(
@@ -918,7 +1074,7 @@ def _update_stick(bones, dots, stick: _Stick, frame: int, view: _View, which: st
         )
         bones.set_segments(seg)
     dots.set_data(x, y)
-    return _center(x)
+    return x
 
 
 def _center(x: np.ndarray) -> float:
@@ -939,8 +1095,21 @@ def _floor_marks(ax, view: _View, stick: _Stick, which: str) -> None:
     ax.vlines(np.arange(lo, hi + 1) * step, view.floor - 0.05 * view.size, view.floor, colors="0.6", lw=0.8, zorder=1)
 
 
-def _frame_axes(ax, view: _View, cx: float) -> None:
+def _frame_axes(ax, view: _View, cx: float, x: np.ndarray | None = None) -> None:
+    """Limits of a panel centred on ``cx``, 1.2 figure heights wide; moved
+    (or, for a figure lying wider than that, widened) so that every drawn
+    point ``x`` is inside with a margin: a flip must not cut a foot off."""
     half = 0.6 * view.size
+    if x is not None:
+        x = np.asarray(x, dtype=float)
+        x = x[np.isfinite(x)]
+        if len(x):
+            pad = 0.08 * view.size
+            lo, hi = float(x.min()) - pad, float(x.max()) + pad
+            if hi - lo <= 2 * half:
+                cx = min(max(cx, hi - half), lo + half)
+            else:
+                cx, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     ax.set_xlim(cx - half, cx + half)
     pad = 0.06 * view.size
     ax.set_ylim(view.floor - pad, max(view.top, view.floor + view.size) + pad)
@@ -1030,17 +1199,20 @@ def preview_figure(
     fig = _figure((min(12.0, n * (panel + 0.1) + 0.4), min(2 * panel * aspect + extra, 7.0)))
     axes = fig.subplots(2, n, squeeze=False)
     colors = [(_PRIMARY, _PRIMARY_LIGHT), (_SECOND, _SECOND_LIGHT)]
+    ahead = headings(sticks[0], sticks[0].at(times), view)
     for col, (t, lab) in enumerate(zip(times, labels, strict=True)):
+        panel_view = turned(view, ahead[col])
         for row, which in enumerate(("side", "front")):
             ax = axes[row, col]
-            cx = None
+            cx, drawn = None, []
             for i, (s, (dark, light)) in enumerate(zip(sticks, colors, strict=False)):
                 frame = int(s.at([t])[0])
-                _draw_stick(ax, s, frame, view, which, dark, light, ms=2.5, under=i > 0)
+                _draw_stick(ax, s, frame, panel_view, which, dark, light, ms=2.5, under=i > 0)
+                drawn.append(panel_view.project(s.points[frame], which)[0])
                 if cx is None:
-                    cx = _center(view.project(s.points[frame], which)[0])
+                    cx = _center(drawn[0])
             ax.axhline(view.floor, color="0.6", lw=0.8, zorder=1)
-            _frame_axes(ax, view, cx or 0.0)
+            _frame_axes(ax, panel_view, cx or 0.0, np.concatenate(drawn))
             ax.set_xticks([])
             ax.set_yticks([])
             if row == 0:
@@ -1126,12 +1298,11 @@ def preview_gif(
     names = " vs ".join(s.name for s in sticks)
 
     def render(t: float, lab: str):
-        centers: dict[int, float] = {}
+        drawn: dict[int, list[np.ndarray]] = {}
         for ax, which, s, bones, dots in artists:
-            cx = _update_stick(bones, dots, s, int(s.at([t])[0]), view, which)
-            centers.setdefault(id(ax), cx)
+            drawn.setdefault(id(ax), []).append(_update_stick(bones, dots, s, int(s.at([t])[0]), view, which))
         for ax in axes:
-            _frame_axes(ax, view, centers[id(ax)])
+            _frame_axes(ax, view, _center(drawn[id(ax)][0]), np.concatenate(drawn[id(ax)]))
         title.set_text(f"{names} · {lab.replace(chr(10), ' · ')}")
         fig.canvas.draw()
         rgb = Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3])

@@ -423,3 +423,87 @@ def test_preview_compare_warns_about_another_skeleton():
     assert len(lines) == 1 and lines[0].startswith("staggered: WARNING: --compare games105_idle.bvh"), r.stderr
     assert "20 joints against 22, no joint joint_Root" in lines[0]
     assert r.stdout_bytes.startswith(b"\x89PNG")
+
+
+def _panel_spreads(fig, stick, pairs):
+    """For each panel column of a preview figure: the left-to-right spread
+    of ``pairs`` (index pairs into the drawn points) along the side and the
+    front panel's horizontal axis, as drawn (the dots' x data)."""
+    axes = np.array(fig.axes).reshape(2, -1)
+    out = []
+    for col in range(axes.shape[1]):
+        row = []
+        for r in (0, 1):
+            x = np.asarray(axes[r, col].lines[0].get_xdata(), dtype=float)
+            row.append(np.nanmean([abs(x[a] - x[b]) for a, b in pairs]))
+        out.append(row)
+    return np.array(out)  # (panels, 2): side, front
+
+
+@pytest.mark.parametrize(
+    "name, pairs, most_side",
+    [
+        # turns around three times: hips and shoulders
+        ("cmu_01_01_forward_jumps.bvh", [("LeftUpLeg", "RightUpLeg"), ("LeftArm", "RightArm")], 0.25),
+        # walks a curve
+        ("cmu3dsmax_131_02_start_walk_stop.bvh", [("LeftHip", "RightHip"), ("LeftShoulder", "RightShoulder")], 0.25),
+        # spins on the floor: the pelvis markers, at the panels where it stands
+        ("cmu_85_12_breakdance_long.c3d", [("Male:LFWT", "Male:RFWT"), ("Male:LBWT", "Male:RBWT")], 0.25),
+    ],
+)
+def test_preview_cameras_turn_with_the_heading(name, pairs, most_side):
+    """Each panel looks across the figure's heading (side) and along it
+    (front): the figure's left-to-right spread (hips, shoulders, pelvis
+    markers) drawn in a side panel is small against the front panel's, at
+    every panel where the figure stands, before, during and after the
+    turns.  Measured on the drawn dots: with one camera for the clip (as
+    before) cmu_01_01's side panels showed the hips and shoulders 2.36
+    times as wide as the front ones mid-turn (rows swapped) and 0.40 at the
+    end, the 131_02 walk's 0.11-0.38, the breakdance's 0.59-13.8 at 9 of 12
+    panels; turned with the heading, at most 0.11, 0.13 and 0.16."""
+    motion = load_input(str(mocap(name)))
+    fig = plots.preview_figure(motion, at="frames", count=12)
+    stick = plots._stick(motion, "clip")
+    idx = [(stick.names.index(a), stick.names.index(b)) for a, b in pairs]
+    spread = _panel_spreads(fig, stick, idx)
+    frames = stick.at(np.linspace(0, len(stick.points) - 1, 12) * stick.frame_time)
+    assert len(frames) == len(spread)
+    view = plots.view_axes(stick.points)
+    d = np.stack([stick.points[frames, a] - stick.points[frames, b] for a, b in idx], axis=1)  # (12, P, 3)
+    level = np.linalg.norm(d - (d @ view.up)[..., None] * view.up, axis=2) / np.linalg.norm(d, axis=2)
+    upright = level.mean(axis=1) > 0.8  # the pairs lie level: not lying on the floor or upside down
+    assert upright.sum() >= 6
+    ratio = spread[upright, 0] / spread[upright, 1]
+    assert np.median(ratio) < 0.1, ratio
+    assert ratio.max() < most_side, ratio
+    # the figure really turns: its hips face directions at least 150 degrees apart
+    a, b = idx[0]
+    lr = stick.points[frames, a] - stick.points[frames, b]
+    ang = np.degrees(np.arctan2(lr @ view.lateral, lr @ view.forward))
+    spread_deg = np.ptp(np.unwrap(np.radians(ang)) * 180 / np.pi)
+    assert spread_deg > (150 if "131_02" not in name else 20), spread_deg
+
+
+def test_c3d_preview_joins_markers_and_keeps_them_in_their_panels():
+    """A marker set is drawn with lines along its rigid tree (no line longer
+    than the body's segments), and on the breakdance's flips every marker
+    stays inside its panel: centred on the median marker (as before), 2 of
+    the 24 panels cut markers off, by up to 0.1 figure heights."""
+    from matplotlib.collections import LineCollection
+
+    motion = load_input(str(mocap("cmu_85_12_breakdance_long.c3d")))
+    fig = plots.preview_figure(motion, at="frames", count=12)
+    size = plots.view_axes(motion.points).size
+    bones, _ = plots.marker_bones(motion.labels, motion.points)
+    assert len(bones) >= len(motion.labels) - 3  # nearly every marker joined (40 edges join 41)
+    cut_before = 0
+    for ax in fig.axes:
+        lines = [c for c in ax.collections if isinstance(c, LineCollection)]
+        assert len(lines) == 1 and len(lines[0].get_segments()) == len(bones)
+        seg = np.array(lines[0].get_segments())  # (B, 2, 2) as drawn: side or front
+        assert np.nanmax(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)) <= 0.55 * size  # a limb, not a leap
+        x = np.asarray(ax.lines[0].get_xdata(), dtype=float)
+        lo, hi = ax.get_xlim()
+        assert x.min() - lo >= 0.05 * size and hi - x.max() >= 0.05 * size, (x.min() - lo, hi - x.max())
+        cut_before += np.max(np.abs(x - np.median(x))) > 0.6 * size
+    assert cut_before >= 1  # the flips this checks are there

@@ -45,7 +45,10 @@ def read_motion(path: str, max_bvh_values: int | None = None):
 @click.option(
     "--contact-joints",
     metavar="A,B,...",
-    help="Joints (BVH) or marker labels (C3D) to find contacts on. Default: feet and toes, or the lowest markers.",
+    help=(
+        "Joints (BVH) or marker labels (C3D) to find contacts on. "
+        "Default: feet and toes, or the lowest markers of the body."
+    ),
 )
 @click.option(
     "--smoothing",

@@ -7,12 +7,23 @@ re-detected constraint is, is decided here.  Pure functions of the document.
 
 from __future__ import annotations
 
-from ..contacts import DEFAULT_MIN_CONTACT, DEFAULT_TOLERANCE, contact_joints, detect_contacts
+import logging
+
+from ..contacts import (
+    DEFAULT_MIN_CONTACT,
+    DEFAULT_TOLERANCE,
+    contact_joints,
+    detect_contacts,
+    rest_rule,
+    warn_never_rested,
+)
 from ..document import Constraint, Document
 from ..errors import UsageError
 from ..ik import two_bone_chain
 from ..motion import BvhMotion
 from ..timewarp import from_pairs
+
+log = logging.getLogger(__name__)
 
 
 def checked_span(doc: Document, joint: str, start: float, end: float) -> tuple[str, float, float]:
@@ -34,7 +45,14 @@ def redetect(
 ) -> tuple[Constraint, ...]:
     """The document's constraints with those on the detected joints replaced by
     a fresh detection on the source motion; unset options come from the
-    document's extract parameters, then the detector's defaults."""
+    document's extract parameters, then the detector's defaults.
+
+    Says what happened when it is not plain (one warning line): a detection
+    that finds nothing (which constraints on those joints it removed and how
+    many on other joints it kept), or, for joints named in ``joints``, those
+    of them that never come to rest.
+    """
+    named = joints is not None
     params = doc.parameters
     if joints is None and params.get("contact_joints"):
         joints = [str(j) for j in params["contact_joints"]]
@@ -42,9 +60,26 @@ def redetect(
         min_contact = float(params.get("min_contact", DEFAULT_MIN_CONTACT))
     if tolerance is None:
         tolerance = float(params.get("contact_tolerance", DEFAULT_TOLERANCE))
-    names = set(contact_joints(doc.source, joints))
+    order = contact_joints(doc.source, joints)
+    names = set(order)
     found = detect_contacts(doc.source, sorted(names), min_duration=min_contact, tolerance=tolerance)
-    return tuple(c for c in doc.constraints if c.joint not in names) + tuple(retimed(doc, f) for f in found)
+    kept = tuple(c for c in doc.constraints if c.joint not in names)
+    if not found and order:
+        gone = len(doc.constraints) - len(kept)
+        log.warning(
+            "--detect found no contact on %s: %s; %s, %s (see --contact-tolerance, --min-contact)",
+            ", ".join(order),
+            rest_rule(min_contact, tolerance),
+            f"removed the {_count(gone, 'constraint')} they had" if gone else "there were none on them",
+            f"kept the {len(kept)} on other joints" if kept else "no constraint is left",
+        )
+    elif named:
+        warn_never_rested(order, found, min_duration=min_contact, tolerance=tolerance)
+    return kept + tuple(retimed(doc, f) for f in found)
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
 
 
 def retimed(doc: Document, found: Constraint) -> Constraint:

@@ -490,6 +490,8 @@ def extract(
     constraints = contact_detection.detect_contacts(
         motion, joints, min_duration=min_contact, tolerance=contact_tolerance
     )
+    if contact_joints is not None:  # the user's choice: say which of them never rest
+        contact_detection.warn_never_rested(joints, constraints, min_duration=min_contact, tolerance=contact_tolerance)
     variables = dense_variables(motion)
     weights = placement.variable_weights(motion, variables)
     if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
