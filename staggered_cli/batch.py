@@ -314,7 +314,8 @@ def _reason(stage: str, err: BaseException, job: Job) -> str:
     if isinstance(err, StaggeredError):
         from .errors import cli_text
 
-        text = cli_text(err.message) if err.source in _STDIO_NAMES or err.source in (job.src, job.dst) else err.cli_message()
+        ours = err.source in _STDIO_NAMES or err.source in (job.src, job.dst)
+        text = cli_text(err.message) if ours else err.cli_message()
     elif isinstance(err, click.exceptions.ClickException):
         text = err.format_message()
     else:

@@ -46,7 +46,6 @@ Detection
 
 from __future__ import annotations
 
-import logging
 import re
 import warnings
 from dataclasses import replace
@@ -55,12 +54,10 @@ import numpy as np
 
 from . import quat
 from .document import Constraint
-from .errors import UsageError
+from .errors import UsageError, arg, warn
 from .motion import BvhMotion, MarkerMotion
 from .names import resolve
 from .skeleton import body_joints
-
-log = logging.getLogger(__name__)
 
 #: Default minimum contact duration, seconds (the paper's 0.25 s misses running stance).
 DEFAULT_MIN_CONTACT = 0.1
@@ -217,7 +214,7 @@ def contact_joints(
         chosen = sorted(int(body[j]) for j in _lowest_of(_median_height(pos[:, body], up), height))
         shared = [all_names[j] for j in chosen if motion.labels.count(all_names[j]) > 1]
         if shared:  # a constraint names its marker: it must name one
-            log.warning("no contact detection on marker %r: its label is shared by other markers", shared[0])
+            warn("no contact detection on marker %r: its label is shared by other markers", shared[0])
             chosen = [j for j in chosen if all_names[j] not in shared]
     return tuple(all_names[j] for j in chosen)
 
@@ -362,9 +359,11 @@ def detect_contacts(
     by joint order.
     """
     if not np.isfinite(min_duration) or min_duration < 0:
-        raise UsageError(f"--min-contact must be a non-negative number of seconds, got {min_duration}")
+        raise UsageError(f"{arg('min_contact')} must be a non-negative number of seconds, got {min_duration}")
     if not np.isfinite(tolerance) or tolerance <= 0:
-        raise UsageError(f"--contact-tolerance must be a positive fraction of the figure height, got {tolerance}")
+        raise UsageError(
+            f"{arg('contact_tolerance')} must be a positive fraction of the figure height, got {tolerance}"
+        )
     names = contact_joints(motion, joints)
     if not names:
         return ()
@@ -415,8 +414,8 @@ def warn_never_rested(
     idle = never_rested(names, constraints)
     if idle:
         share = "all" if len(idle) == len(names) else f"{len(idle)} of the"
-        log.warning(
-            "no contact on %s (%s %d named): %s (see --contact-tolerance, --min-contact)",
+        warn(
+            f"no contact on %s (%s %d named): %s (see {arg('contact_tolerance')}, {arg('min_contact')})",
             ", ".join(idle),
             share,
             len(names),

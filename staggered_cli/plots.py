@@ -59,7 +59,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import quat
-from .errors import UsageError
+from .errors import UsageError, arg
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -128,7 +128,7 @@ def _window(doc: Document, time: tuple[float, float] | None) -> tuple[float, flo
     if hi < 0 or lo > end or lo >= hi:
         a = "" if math.isinf(lo) else f"{lo:g}"
         b = "" if math.isinf(hi) else f"{hi:g}"
-        raise UsageError(f"--time {a}:{b} is outside the clip (0 to {end:.3f} s)")
+        raise UsageError(f"{arg('time')} {a}:{b} is outside the clip (0 to {end:.3f} s)")
     return max(lo, 0.0), min(hi, end)
 
 
@@ -736,7 +736,7 @@ def curves_figure(
     scale = _crowding(doc, lo, hi)
     rows = _rows(doc, joints, rotation_only=True) if joints else _default_curves(doc)
     if len(rows) > MAX_CURVES:
-        raise UsageError(f"--joints: at most {MAX_CURVES} curves in one picture, got {len(rows)}")
+        raise UsageError(f"{arg('joints')}: at most {MAX_CURVES} curves in one picture, got {len(rows)}")
     baked = bake(doc)
     splines = bake(doc, layers="splines")
     t = doc.frame_times
@@ -1001,9 +1001,9 @@ def turned(view: _View, forward: np.ndarray) -> _View:
 
 def _parse_at(at: str, count: int | None, n_poses: int | None) -> tuple[str, int | None]:
     if at not in ("poses", "frames"):
-        raise UsageError(f"--at must be 'poses' or 'frames N', got {at!r}")
+        raise UsageError(f"{arg('at')} must be 'poses' or 'frames N', got {at!r}")
     if count is not None and count < 1:
-        raise UsageError(f"--at frames N needs N >= 1, got {count}")
+        raise UsageError(f"{arg('at')} frames N needs N >= 1, got {count}")
     if at == "poses" and n_poses is None:
         at = "frames"  # a clip without poses
     return at, count

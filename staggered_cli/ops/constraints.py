@@ -7,8 +7,6 @@ re-detected constraint is, is decided here.  Pure functions of the document.
 
 from __future__ import annotations
 
-import logging
-
 from ..contacts import (
     DEFAULT_MIN_CONTACT,
     DEFAULT_TOLERANCE,
@@ -18,12 +16,10 @@ from ..contacts import (
     warn_never_rested,
 )
 from ..document import Constraint, Document
-from ..errors import UsageError
+from ..errors import UsageError, arg, warn
 from ..ik import two_bone_chain
 from ..motion import BvhMotion
 from ..timewarp import from_pairs
-
-log = logging.getLogger(__name__)
 
 
 def checked_span(doc: Document, joint: str, start: float, end: float) -> tuple[str, float, float]:
@@ -66,8 +62,9 @@ def redetect(
     kept = tuple(c for c in doc.constraints if c.joint not in names)
     if not found and order:
         gone = len(doc.constraints) - len(kept)
-        log.warning(
-            "--detect found no contact on %s: %s; %s, %s (see --contact-tolerance, --min-contact)",
+        warn(
+            f"{arg('detect')} found no contact on %s: %s; %s, %s "
+            f"(see {arg('contact_tolerance')}, {arg('min_contact')})",
             ", ".join(order),
             rest_rule(min_contact, tolerance),
             f"removed the {_count(gone, 'constraint')} they had" if gone else "there were none on them",
