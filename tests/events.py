@@ -221,11 +221,22 @@ def flights(world: np.ndarray, up: np.ndarray, sides: list[list[int]], height: f
     return np.stack([start[keep], stop[keep]], axis=1) * frame_time if keep.any() else np.zeros((0, 2))
 
 
-def find_events(names, parents, world: np.ndarray, frame_time: float, height: float, *, first: int = 0) -> Events:
+def find_events(
+    names,
+    parents,
+    world: np.ndarray,
+    frame_time: float,
+    height: float,
+    *,
+    first: int = 0,
+    root_prominence: float = ROOT_PROMINENCE,
+) -> Events:
     """The events of a clip from its skeleton and world positions (T, J, 3).
 
     ``first``: frames before it take no part (1 after a T-pose frame); times
-    stay the clip's own (frame f at f x frame_time).
+    stay the clip's own (frame f at f x frame_time).  ``root_prominence``:
+    of the root height extremes, fraction of ``height`` (the benchmark uses
+    the issue's 3 %; a walk's bob is smaller, see tests/test_events.py).
     """
     parents = np.asarray(parents)
     names = list(names)
@@ -236,7 +247,7 @@ def find_events(names, parents, world: np.ndarray, frame_time: float, height: fl
     up = up_axis(names, world, [j for s in sides for j in s])
     place = place_joint(parents, world, height, sides)
     h = world[:, place] @ up
-    f, kind = extremes(h, ROOT_PROMINENCE * height)
+    f, kind = extremes(h, root_prominence * height)
     root_t = (f + first) * frame_time
     # the hips: the knee's parent above each leg's most proximal foot joint
     hips = tuple(_ancestors(parents, s[0])[1] for s in sides)
@@ -252,11 +263,17 @@ def find_events(names, parents, world: np.ndarray, frame_time: float, height: fl
     return Events(root_t, kind, swings, arms, fl, place, up, tuple(np.array(s) for s in sides))
 
 
-def clip_events(motion, name: str = "") -> Events:
+def clip_events(motion, name: str = "", **options) -> Events:
     """:func:`find_events` of a BVH clip read by ``staggered_cli.read``
     (``name``: its file name, to leave out a T-pose frame)."""
     sk = motion.skeleton
     first = 1 if name in TPOSE_FILES else 0
     return find_events(
-        sk.names, sk.parents, motion.world_positions(), float(motion.frame_time), motion.figure_height(), first=first
+        sk.names,
+        sk.parents,
+        motion.world_positions(),
+        float(motion.frame_time),
+        motion.figure_height(),
+        first=first,
+        **options,
     )
