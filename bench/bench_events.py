@@ -121,6 +121,8 @@ def measure_doc(doc, ev, motion, sparse: bool) -> dict:
         "landing": nearest_offset(doc.pose_t, ev.flights[:, 1]),
     }
     knots = extreme_times(doc, [] if root_col is None else [root_col])
+    refined = 0 if root_col is None else int(np.count_nonzero(doc.refinements()[:, root_col]))
+    row["root_refined"] = [refined, doc.n_poses]
     row["root_knot"] = share(np.abs(nearest_offset(knots, ev.root_extremes)) <= KNOT_WINDOW + 1e-9)
     swing_hits = []
     for hand, times in ev.swings.items():
@@ -233,8 +235,11 @@ def print_tables(rows: list[dict], summary: dict, sparse: bool) -> None:
             True,
         ),
         (
-            "Root height extremes with a root extreme knot within 0.05 s",
-            [("root knot", lambda r, lv: _fmt(r[lv]["root_knot"], pct=True))],
+            "Root height extremes with a root extreme knot within 0.05 s (refined: poses with r != 0 on the root)",
+            [
+                ("root knot", lambda r, lv: _fmt(r[lv]["root_knot"], pct=True)),
+                ("refined", lambda r, lv: "{}/{}".format(*r[lv]["root_refined"])),
+            ],
             True,
         ),
         (

@@ -200,3 +200,40 @@ def test_the_tpose_frame_makes_no_event(name):
     e = _events(name)
     first = min([*e.root_extremes, *(t for v in e.swings.values() for t in v), *e.flights.ravel()])
     assert first >= 0.15, first
+
+
+@functools.cache
+def _bench():
+    """bench/bench_events.py as a module (bench/ is not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_events.py"
+    spec = importlib.util.spec_from_file_location("bench_events", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_benchmarks_even_baseline_is_even_and_unrefined():
+    """The sparse ratio's baseline: as many poses, none refined, on the
+    evenly spaced frames; a document of two poses (idle) is its own baseline
+    (ratio exactly 1)."""
+    b = _bench()
+    doc = st.extract(_motion("bandai2_run_normal_001.bvh"))
+    even = b.even(doc)
+    assert even.n_poses == doc.n_poses and not np.any(even.refinements())
+    frames = np.round(even.pose_t / doc.frame_time)
+    assert np.allclose(even.pose_t, frames * doc.frame_time) and np.ptp(np.diff(frames)) <= 1
+    idle = _motion("games105_idle.bvh")
+    row = b.measure_doc(st.extract(idle), _events("games105_idle.bvh"), idle, sparse=True)
+    assert row["sparse"] == 1.0 and row["poses"] == 2
+
+
+def test_the_benchmarks_nearest_offsets():
+    b = _bench()
+    times = np.array([0.0, 1.0, 2.0])
+    got = b.nearest_offset(times, np.array([0.2, 0.6, 1.9, 5.0, -1.0]))
+    assert np.allclose(got, [-0.2, 0.4, 0.1, -3.0, 1.0])
+    assert len(b.nearest_offset(times, np.zeros(0))) == 0
+    assert np.allclose(b.nearest_offset(np.array([1.0]), np.array([0.5, 3.0])), [0.5, -2.0])
