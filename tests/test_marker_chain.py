@@ -152,5 +152,5 @@ def test_a_chain_names_each_marker_once():
     from staggered_cli.errors import UsageError
 
     _, doc, _ = c3d_doc(EB015)
-    with pytest.raises(UsageError, match="'PV1' appears twice in --chain"):
+    with pytest.raises(UsageError, match="'PV1' appears twice in chain"):
         timing.succession(doc, 0.01, 1.0, chain=["PV1", "RTH1", "PV1"])
