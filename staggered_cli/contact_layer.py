@@ -271,7 +271,7 @@ def joint_layer(
         goals = eased
         out = ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=goals)
         reached = _reached(sk, out, tr, t, todo, targets)
-    _warn_overridden(doc, rot, out, t, todo)
+    _warn_overridden(doc, rot, out, t, todo, blend)
     _warn_unreached(doc, todo, targets, reached, t, size)
     return out
 
@@ -432,7 +432,9 @@ def _warn_unreached(doc: Document, todo: list, targets: list, reached: list, t: 
 _EDIT_WORTH_WARNING = 1.0
 
 
-def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np.ndarray, todo: list) -> None:
+def _warn_overridden(
+    doc: Document, before: np.ndarray, after: np.ndarray, t: np.ndarray, todo: list, blend: float = 0.0
+) -> None:
     """Say so, in one warning line, where the contact layer does not keep an
     edited joint's rotation at a pose: a planted foot cannot keep a hip
     flexion, but the user must know.
@@ -442,7 +444,8 @@ def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np
     got, the change after it (``g = src⁻¹ · after``), split into its turn
     about ``a`` (the part of the edit that survives) and the rest (off-axis).
     It is reported when less than half of θ survives along ``a``, or when
-    ``after`` is more than θ/2 away from ``before``."""
+    ``after`` is more than θ/2 away from ``before``; at poses inside a
+    repaired constraint or its ``blend`` windows (where the layer acts)."""
     src = doc.source
     sk = src.skeleton
     if len(t) == 0:
@@ -456,7 +459,7 @@ def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np
         chain = two_bone_chain(sk, c.joint)
         for k in range(doc.n_poses):
             f = frames[k]
-            if not c.start - 1e-9 <= t[f] <= c.end + 1e-9:
+            if not c.start - blend - 1e-9 < t[f] < c.end + blend + 1e-9:
                 continue
             for j in (chain.upper, chain.middle, chain.lower):
                 if (k, j) in cases:
