@@ -265,7 +265,7 @@ def joint_layer(
         for c in todo
     ]
     for _ in range(_EASING_PASSES):  # a leg that does not reach: its miss eased in and out, solved again
-        eased = _eased(goals, reached, kept, _MISS_RATE * size)
+        eased = _eased(targets, reached, kept, _MISS_RATE * size, _MISS_WORTH_WARNING * size)
         if eased is None:
             break
         goals = eased
@@ -344,7 +344,7 @@ def _root_path(sk, joint: str) -> list[int]:
     return path
 
 
-def _eased(targets: list, reached: list, kept: list, rate: float) -> list | None:
+def _eased(targets: list, reached: list, kept: list, rate: float, worth: float = 0.0) -> list | None:
     """Targets with each miss eased in and out, or None where every target
     is reached.
 
@@ -368,7 +368,7 @@ def _eased(targets: list, reached: list, kept: list, rate: float) -> list | None
             continue
         miss = p[inside] - g[inside]
         m = np.linalg.norm(miss, axis=1)
-        if not np.any(m > 0.5 * rate):
+        if not np.any(m > worth):
             continue
         m = np.where(m > 0.1 * rate, m, 0.0)
         idx = np.arange(len(m))
@@ -416,15 +416,27 @@ def _warn_unreached(doc: Document, todo: list, targets: list, reached: list, t: 
         f"{c.joint} {a:.3f}-{b:.3f} s (up to {100 * m:.2f} % of the height)" for m, c, a, b in missed[:6]
     )
     more = f" and {len(missed) - 6} more" if len(missed) > 6 else ""
-    worst = max(missed, key=lambda m: m[0])[1]
+    # the way out: where no pose lies between the missed frames and the
+    # contact's end (or start), the edit reaches in from a pose beyond it,
+    # and a pose there keeps it out
+    half = 0.5 * doc.frame_time
+    ends = []
+    for _, c, a, b in sorted(missed, key=lambda m: -m[0]):
+        if not np.any((doc.pose_t >= b - 1e-9) & (doc.pose_t <= c.end + half)):
+            ends.append(c.end)
+        elif not np.any((doc.pose_t >= c.start - half) & (doc.pose_t <= a + 1e-9)):
+            ends.append(c.start)
+    if ends:
+        way = f"add a pose at the contact's end (`cull --add-time {ends[0]:.3f}`) or bake with --no-ik"
+    else:
+        way = "the edits at poses inside the contacts ask more than the legs reach: edit less, or bake with --no-ik"
     log.warning(
-        "the contact layer cannot keep %d planted contact%s on the captured path (the leg does not reach): %s%s; "
-        "add a pose at the contact's end (`cull --add-time %.3f`) or bake with --no-ik",
+        "the contact layer cannot keep %d planted contact%s on the captured path (the leg does not reach): %s%s; %s",
         len(missed),
         "" if len(missed) == 1 else "s",
         listed,
         more,
-        worst.end,
+        way,
     )
 
 
