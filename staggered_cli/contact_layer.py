@@ -9,11 +9,19 @@ as the last layer.
 A constraint whose effector is where the source had it (to 1e-6 of the
 figure's size) over the constraint and its blend windows gets no layer, so
 an unedited round trip stays lossless and an edit stays local.  During a
-disturbed constraint the effector follows its own captured path, shifted by
-the mean offset the edit gave it over the constraint: the edit adds no
-sliding, the capture's own heel-to-toe roll is kept, and an edit that moves
-the whole figure moves its plants along.  Pure functions of arrays and the
-document; nothing is modified in place except the arrays they create.
+disturbed constraint the effector follows its own captured path: the edit
+adds no sliding, the capture's own heel-to-toe roll is kept, and since the
+path is the capture's, the effector never goes below the floor the capture
+shows, whatever an edit did to the root or the chain above it.  A plant
+moves only when the user moves the figure as a whole: asked for
+(``move_plants``, ``bake --move-plants``: each plant moves by the
+horizontal part of the mean offset the edits gave it over the contact), or
+seen (every frame of the figure's root moved by one same offset: the plants
+move by its horizontal part).  Horizontally only: never into or off the
+floor.  Where a chain cannot reach its plant the effector comes as close as
+it can (see :mod:`.ik`) and one warning line names the contacts, the miss
+and the way out.  Pure functions of arrays and the document; nothing is
+modified in place except the arrays they create.
 """
 
 from __future__ import annotations
@@ -23,12 +31,13 @@ import logging
 import numpy as np
 
 from . import quat
+from .contacts import up_direction
 from .document import Document
 from .errors import UsageError
 from .ik import ik_layer, two_bone_chain
 from .motion import local_rotations_from_channels, local_translations_from_channels
 from .sampling import at_times
-from .skeleton import forward_kinematics
+from .skeleton import body_joints, forward_kinematics
 
 log = logging.getLogger(__name__)
 
@@ -176,15 +185,23 @@ def _overlap(c, d, blend: float) -> bool:
 
 
 def joint_layer(
-    doc: Document, rot: np.ndarray, tr: np.ndarray, t: np.ndarray, blend: float, same_rate: bool
+    doc: Document,
+    rot: np.ndarray,
+    tr: np.ndarray,
+    t: np.ndarray,
+    blend: float,
+    same_rate: bool,
+    move_plants: bool = False,
 ) -> np.ndarray:
     """BVH: local rotations (N, J, 4) with the constraints the edits disturbed
     repaired by two-bone IK, given the pose ``rot``, ``tr`` at times ``t``
-    (see the module docstring)."""
+    (see the module docstring).  ``move_plants``: the plants follow the
+    edits horizontally (the user moved the figure as a whole)."""
     src = doc.source
     sk = src.skeleton
     check_joints(doc)
     candidates = list(doc.constraints)
+    changed = None
     if same_rate:
         # cheap first pass without forward kinematics: a constraint whose
         # chain keeps the source's local values over its window is untouched
@@ -200,12 +217,21 @@ def joint_layer(
     size = src.figure_height()  # cached with the clip's world positions
 
     tolerance = _tolerance(size, same_rate)
+    up = up_direction(src_wp, size, body_joints(sk))
+    root = int(body_joints(sk)[0])
+    whole = _whole_shift(wp[:, root], at_times(src_wp[:, root], doc.frame_time, t), tolerance)
 
     def target(c):
         j = sk.names.index(c.joint)
         path = _source_path(src_wp[:, j], doc.frame_time, c, t)
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
-        return path, path + _plant_offset(wp[inside, j], path[inside], tolerance)
+        if whole is not None:
+            shift = whole
+        elif move_plants:
+            shift = _plant_offset(wp[inside, j], path[inside], tolerance)
+        else:
+            shift = np.zeros(3)
+        return path, path + _horizontal(shift, up)
 
     todo = [
         c
@@ -230,20 +256,208 @@ def joint_layer(
         return rot
     targets = [None if c.pin else target(c)[1] for c in todo]  # None: held at its mean position
     out = ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=targets)
-    _warn_overridden(doc, rot, out, t, todo)
+    reached = _reached(sk, out, tr, t, todo, targets)
+    goals = targets
+    kept = [
+        None
+        if changed is None or c.source_span != (float(c.start), float(c.end))
+        else ~changed[:, _root_path(sk, c.joint)].any(axis=1)
+        for c in todo
+    ]
+    for _ in range(_EASING_PASSES):  # a leg that does not reach: its miss eased in and out, solved again
+        eased = _eased(targets, reached, kept, _MISS_RATE * size, _MISS_WORTH_WARNING * size)
+        if eased is None:
+            break
+        goals = eased
+        out = ik_layer(sk, rot, tr, t, tuple(todo), blend=blend, targets=goals)
+        reached = _reached(sk, out, tr, t, todo, targets)
+    _warn_overridden(doc, rot, out, t, todo, blend)
+    _warn_unreached(doc, todo, targets, reached, t, size)
     return out
+
+
+#: A plant the layer misses by more than this fraction of the figure's height is reported.
+_MISS_WORTH_WARNING = 1e-3
+
+
+def _horizontal(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``v`` (3,) without its part along the unit ``up`` (3,)."""
+    return v - np.dot(v, up) * up
+
+
+def _whole_shift(pos: np.ndarray, path: np.ndarray, tolerance: float) -> np.ndarray | None:
+    """The offset (3,) by which the edits moved the figure as a whole: the
+    root's positions ``pos`` (N, 3) all off its source ``path`` (N, 3) by
+    one same offset (within a tenth of ``tolerance`` of each other, and more
+    than ``tolerance`` long); None otherwise."""
+    d = pos - path
+    ok = np.all(np.isfinite(d), axis=1)
+    if not ok.any():
+        return None
+    d = d[ok]
+    mean = d.mean(axis=0)
+    if (
+        np.linalg.norm(mean) <= tolerance
+        or np.abs(d - mean).max() > 0.1 * max(tolerance, 1e-300) + 1e-9 * np.abs(mean).max()
+    ):
+        return None
+    return mean
+
+
+def _reached(sk, out: np.ndarray, tr: np.ndarray, t: np.ndarray, todo: list, targets: list) -> list:
+    """Where each constraint's joint is (N, 3) in the layered pose ``out``
+    (NaN outside its frames; None for a constraint without a target)."""
+    frames = np.zeros(len(t), dtype=bool)
+    for c, g in zip(todo, targets, strict=True):
+        if g is not None:
+            frames |= (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
+    rows = np.flatnonzero(frames)
+    wp = forward_kinematics(sk, out[rows], tr[rows])[1] if len(rows) else None
+    at = np.full(len(t), -1)
+    at[rows] = np.arange(len(rows))
+    found = []
+    for c, g in zip(todo, targets, strict=True):
+        if g is None:
+            found.append(None)
+            continue
+        inside = np.flatnonzero((t >= c.start - 1e-9) & (t <= c.end + 1e-9))
+        p = np.full((len(t), 3), np.nan)
+        p[inside] = wp[at[inside], sk.names.index(c.joint)]
+        found.append(p)
+    return found
+
+
+#: Fastest a miss grows or shrinks (fraction of the figure's height per frame):
+#: a leg that cannot reach lifts its foot no faster than this.
+_MISS_RATE = 7.5e-4
+#: Solves with eased misses at most (a toe's miss depends on its foot's).
+_EASING_PASSES = 2
+
+
+def _root_path(sk, joint: str) -> list[int]:
+    """Joint indices from ``joint`` up to the root."""
+    j = sk.names.index(joint)
+    path = []
+    while j >= 0:
+        path.append(j)
+        j = int(sk.parents[j])
+    return path
+
+
+def _eased(targets: list, reached: list, kept: list, rate: float, worth: float = 0.0) -> list | None:
+    """Targets with each miss eased in and out, or None where every target
+    is reached.
+
+    The miss (the reached point's offset from the target, inside the
+    constraint) is replaced by the smallest one that is at least as large at
+    every frame and changes by at most ``rate`` per frame (the upper
+    envelope of cones, two running maxima), along the direction of the
+    nearest frame that misses: the foot lifts early and gradually rather
+    than being dragged by the hips at the instant the leg runs out of reach.
+    The edit stays local: where ``kept`` (N,) bool marks frames whose chain
+    the edits left as captured, the eased miss is back to zero (the rate is
+    raised as much as that needs).
+    """
+    out = list(targets)
+    changed = False
+    for i, (g, p) in enumerate(zip(targets, reached, strict=True)):
+        if g is None:
+            continue
+        inside = np.flatnonzero(np.all(np.isfinite(p), axis=1))
+        if len(inside) == 0:
+            continue
+        miss = p[inside] - g[inside]
+        m = np.linalg.norm(miss, axis=1)
+        if not np.any(m > worth):
+            continue
+        m = np.where(m > 0.1 * rate, m, 0.0)
+        idx = np.arange(len(m))
+        if kept[i] is not None and kept[i][inside].any():
+            # distance (frames) from each frame to the nearest one the edits left alone
+            still = kept[i][inside]
+            last = np.maximum.accumulate(np.where(still, idx, -len(m) - 1))
+            nxt = np.minimum.accumulate(np.where(still, idx, 3 * len(m) + 1)[::-1])[::-1]
+            gap = np.minimum(idx - last, nxt - idx)
+            rate_i = max(rate, float(np.max(m / np.maximum(gap, 1))))
+        else:
+            rate_i = rate
+        x = rate_i * idx
+        env = np.maximum(np.maximum.accumulate(m + x) - x, (np.maximum.accumulate((m - x)[::-1]) + x[::-1])[::-1])
+        hit = m > 0
+        before = np.maximum.accumulate(np.where(hit, idx, -1))
+        after = np.minimum.accumulate(np.where(hit, idx, len(m))[::-1])[::-1]
+        use_before = (before >= 0) & ((after >= len(m)) | (idx - before <= after - idx))
+        near = np.where(use_before, before, np.minimum(after, len(m) - 1))
+        u = miss[near] / m[near][:, None]
+        eased = np.array(g, dtype=float, copy=True)
+        eased[inside] = g[inside] + env[:, None] * u
+        out[i] = eased
+        changed = True
+    return out if changed else None
+
+
+def _warn_unreached(doc: Document, todo: list, targets: list, reached: list, t: np.ndarray, size: float) -> None:
+    """One warning line for the plants the layer could not keep on their
+    target (a leg that does not reach): which contacts, when, by how much
+    (% of the figure's height), and the way out."""
+    missed = []
+    for c, g, p in zip(todo, targets, reached, strict=True):
+        if g is None:
+            continue
+        with np.errstate(invalid="ignore"):
+            miss = np.linalg.norm(p - g, axis=-1) / size
+        far = np.flatnonzero(np.nan_to_num(miss) > _MISS_WORTH_WARNING)
+        if len(far):
+            missed.append((float(np.nanmax(miss)), c, float(t[far[0]]), float(t[far[-1]])))
+    if not missed:
+        return
+    missed.sort(key=lambda m: (m[1].start, m[1].joint))
+    listed = ", ".join(
+        f"{c.joint} {a:.3f}-{b:.3f} s (up to {100 * m:.2f} % of the height)" for m, c, a, b in missed[:6]
+    )
+    more = f" and {len(missed) - 6} more" if len(missed) > 6 else ""
+    # the way out: where no pose lies between the missed frames and the
+    # contact's end (or start), the edit reaches in from a pose beyond it,
+    # and a pose there keeps it out
+    half = 0.5 * doc.frame_time
+    ends = []
+    for _, c, a, b in sorted(missed, key=lambda m: -m[0]):
+        if not np.any((doc.pose_t >= b - 1e-9) & (doc.pose_t <= c.end + half)):
+            ends.append(c.end)
+        elif not np.any((doc.pose_t >= c.start - half) & (doc.pose_t <= a + 1e-9)):
+            ends.append(c.start)
+    if ends:
+        way = f"add a pose at the contact's end (`cull --add-time {ends[0]:.3f}`) or bake with --no-ik"
+    else:
+        way = "the edits at poses inside the contacts ask more than the legs reach: edit less, or bake with --no-ik"
+    log.warning(
+        "the contact layer cannot keep %d planted contact%s on the captured path (the leg does not reach): %s%s; %s",
+        len(missed),
+        "" if len(missed) == 1 else "s",
+        listed,
+        more,
+        way,
+    )
 
 
 #: Edits smaller than this (degrees) at a pose are not worth a warning.
 _EDIT_WORTH_WARNING = 1.0
 
 
-def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np.ndarray, todo: list) -> None:
-    """Say so, in one warning line, where the contact layer takes back more
-    than half of an edited joint's rotation at a pose: a planted foot cannot
-    keep a hip flexion, but the user must know.  The edit is the motion's
-    difference from the source at the pose before the layer; what is kept,
-    the difference after it."""
+def _warn_overridden(
+    doc: Document, before: np.ndarray, after: np.ndarray, t: np.ndarray, todo: list, blend: float = 0.0
+) -> None:
+    """Say so, in one warning line, where the contact layer does not keep an
+    edited joint's rotation at a pose: a planted foot cannot keep a hip
+    flexion, but the user must know.
+
+    The edit is the joint's local change from the source at the pose's frame
+    before the layer (``e = src⁻¹ · before``, axis ``a``, angle θ); what is
+    got, the change after it (``g = src⁻¹ · after``), split into its turn
+    about ``a`` (the part of the edit that survives) and the rest (off-axis).
+    It is reported when less than half of θ survives along ``a``, or when
+    ``after`` is more than θ/2 away from ``before``; at poses inside a
+    repaired constraint or its ``blend`` windows (where the layer acts)."""
     src = doc.source
     sk = src.skeleton
     if len(t) == 0:
@@ -251,33 +465,37 @@ def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np
     frames = np.clip(np.searchsorted(t, doc.pose_t), 0, len(t) - 1)
     near = np.clip(np.rint(t[frames] / doc.frame_time).astype(int), 0, doc.n_frames - 1)
     source = src.local_rotations()[near]  # (K, J, 4)
-    cases: dict[tuple[int, int], tuple[float, float, int]] = {}  # (pose, joint) -> kept, edit, constraint
+    cases: dict[tuple[int, int], tuple[float, float, float, int]] = {}  # (pose, joint) -> asked, got, off, constraint
     for c in todo:
         n = doc.constraints.index(c)
         chain = two_bone_chain(sk, c.joint)
         for k in range(doc.n_poses):
             f = frames[k]
-            if not c.start - 1e-9 <= t[f] <= c.end + 1e-9:
+            if not c.start - blend - 1e-9 < t[f] < c.end + blend + 1e-9:
                 continue
             for j in (chain.upper, chain.middle, chain.lower):
-                edit = float(np.degrees(quat.angle_between(before[f, j], source[k, j])))
-                kept = float(np.degrees(quat.angle_between(after[f, j], source[k, j])))
-                if edit >= _EDIT_WORTH_WARNING and kept < 0.5 * edit and (k, j) not in cases:
-                    cases[(k, j)] = (kept, edit, n)
+                if (k, j) in cases:
+                    continue
+                asked, got, off, moved = _kept_along(source[k, j], before[f, j], after[f, j])
+                if asked >= _EDIT_WORTH_WARNING and (got < 0.5 * asked or moved > 0.5 * asked):
+                    cases[(k, j)] = (asked, got, off, n)
     if not cases:
         return
-    removes = " ".join(f"--remove {n}" for n in sorted({n for _, _, n in cases.values()}))
+    removes = " ".join(f"--remove {n}" for n in sorted({v[3] for v in cases.values()}))
+
+    def said(asked: float, got: float, off: float) -> str:
+        return f"asked {asked:.1f}°, got {got:.1f}°" + (f" (and {off:.1f}° off-axis)" if off >= 0.05 else "")
+
     if len(cases) == 1:
-        (((k, j), (kept, edit, n)),) = cases.items()
+        (((k, j), (asked, got, off, n)),) = cases.items()
         c = doc.constraints[n]
         log.warning(
-            "pose %d (%.3f s): the contact layer leaves %s %.1f° of its %.1f° edit to keep %s planted "
+            "pose %d (%.3f s) %s: %s: the contact layer changes the edit to keep %s planted "
             "(constraint %d, %.3f to %.3f s); bake with --no-ik, or drop the constraint with `constraints %s`",
             k,
             doc.pose_t[k],
             sk.names[j],
-            kept,
-            edit,
+            said(asked, got, off),
             c.joint,
             n,
             c.start,
@@ -286,18 +504,40 @@ def _warn_overridden(doc: Document, before: np.ndarray, after: np.ndarray, t: np
         )
         return
     shown = sorted(cases.items())
-    listed = ", ".join(
-        f"pose {k} {sk.names[j]} {kept:.1f}° of {edit:.1f}° (constraint {n})" for (k, j), (kept, edit, n) in shown[:4]
-    )
+    listed = ", ".join(f"pose {k} {sk.names[j]} {said(a, g, o)} (constraint {n})" for (k, j), (a, g, o, n) in shown[:4])
     more = f" and {len(shown) - 4} more" if len(shown) > 4 else ""
     log.warning(
-        "the contact layer takes back more than half of %d edited joint rotations at poses: %s%s; "
+        "the contact layer changes %d edited joint rotations at poses to keep feet planted: %s%s; "
         "bake with --no-ik, or drop the constraints with `constraints %s`",
         len(shown),
         listed,
         more,
         removes,
     )
+
+
+def _kept_along(source: np.ndarray, before: np.ndarray, after: np.ndarray) -> tuple[float, float, float, float]:
+    """Degrees: the edit's angle (``source`` to ``before``, local), the
+    signed turn of ``source`` to ``after`` about the edit's own axis, the rest
+    of that change (off the axis), and the angle from ``before`` to ``after``."""
+    e = quat.mul(quat.conj(source), before)
+    e = np.where(e[..., :1] < 0, -e, e)
+    g = quat.mul(quat.conj(source), after)
+    g = np.where(g[..., :1] < 0, -g, g)
+    r = quat.log(e)  # the rotation vector
+    ang = float(np.linalg.norm(r))
+    asked = float(np.degrees(ang))
+    if ang <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    axis = r / ang
+    # swing-twist: the twist about the axis is the part of g that turns about it
+    twist = np.concatenate([g[:1], np.dot(g[1:], axis) * axis])
+    tn = float(np.linalg.norm(twist))
+    twist = twist / tn if tn > 0 else quat.identity()
+    got = float(np.degrees(2.0 * np.arctan2(np.dot(twist[1:], axis), twist[0])))
+    off = float(np.degrees(quat.angle(quat.mul(g, quat.conj(twist)))))
+    moved = float(np.degrees(quat.angle_between(before, after)))
+    return asked, got, off, moved
 
 
 def _plant_offset(pos: np.ndarray, path: np.ndarray, tolerance: float) -> np.ndarray:
@@ -308,7 +548,8 @@ def _plant_offset(pos: np.ndarray, path: np.ndarray, tolerance: float) -> np.nda
     on the captured path (offset 0): the layer then only undoes the sliding
     the edit brought, and frames the edit did not reach stay as they are.
     Only an edit that moved the whole contact moves the plant, by its mean
-    offset (gaps ignored).
+    offset (gaps ignored); the callers keep its horizontal part, and only
+    when the plants are to move (``move_plants``).
     """
     with np.errstate(invalid="ignore"):
         d = pos - path
@@ -331,9 +572,13 @@ def _smooth_weight(t: np.ndarray, start: float, end: float, blend: float) -> np.
     return w
 
 
-def marker_layer(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, same_rate: bool) -> np.ndarray:
-    """C3D: a disturbed constrained marker follows its captured path shifted by
-    the edit's mean offset over the constraint, blended in and out.
+def marker_layer(
+    doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, same_rate: bool, move_plants: bool = False
+) -> np.ndarray:
+    """C3D: a disturbed constrained marker follows its captured path, blended
+    in and out; shifted horizontally by the edit's mean offset over the
+    constraint with ``move_plants``, or by the whole marker set's offset when
+    the edits moved every marker at every frame by one same offset.
 
     Markers that a timing edit retimed as a chain (the document's
     ``marker_tree``, see :mod:`.ops.marker_chain`) keep their segments: the
@@ -343,8 +588,18 @@ def marker_layer(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
     about its parent towards its plant; the markers below it move along.
     """
     src = doc.source
-    tolerance = _tolerance(src.figure_height(), same_rate)
+    size = src.figure_height()
+    tolerance = _tolerance(size, same_rate)
     labels = list(src.labels)
+    up = up_direction(src.points, size)
+    whole = None
+    if doc.constraints:
+        # the whole set moved by one offset: the mean over markers, at every frame
+        with np.errstate(invalid="ignore"):
+            d = pts - at_times(src.points, doc.frame_time, t)
+            seen = np.all(np.isfinite(d), axis=2)
+            if seen.any() and np.all(np.abs(d[seen] - d[seen].mean(axis=0)).max(axis=0) <= 0.1 * tolerance):
+                whole = _whole_shift(d[seen].mean(axis=0)[None], np.zeros((1, 3)), tolerance)
     parents = marker_tree_parents(doc)
     depth = np.zeros(len(labels), dtype=int)
     for i in range(len(labels)):
@@ -372,7 +627,15 @@ def marker_layer(doc: Document, pts: np.ndarray, t: np.ndarray, blend: float, sa
         seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(path), axis=1)
         if not seen.any():
             continue
-        target = path + _plant_offset(pts[seen, m], path[seen], tolerance)
+        if c.pin:
+            shift = np.zeros(3)
+        elif whole is not None:
+            shift = whole
+        elif move_plants:
+            shift = _plant_offset(pts[seen, m], path[seen], tolerance)
+        else:
+            shift = np.zeros(3)
+        target = path + _horizontal(shift, up)
         w = _smooth_weight(t, c.start, c.end, blend)[:, None]
         # in the blend windows the correction fades from its value at the boundary
         i0, i1 = np.flatnonzero(seen)[[0, -1]]

@@ -234,7 +234,7 @@ def test_bake_warns_when_the_contact_layer_takes_back_an_edit(cmu_walk, tmp_path
     lines = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     about = [x for x in lines if "LeftUpLeg" in x]
     assert len(about) == 1, lines
-    for needle in ("pose 2", "constraint 1", "LeftFoot", "--no-ik", "constraints --remove 1"):
+    for needle in ("pose 2", "asked 15.0°, got ", "constraint 1", "LeftFoot", "--no-ik", "constraints --remove 1"):
         assert needle in about[0], about[0]
     # the layer kept less than half of the 15° (4.9°)
     assert np.degrees(quat.angle_between(kept, m.local_rotations()[f, j])) < 7.5

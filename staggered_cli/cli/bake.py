@@ -27,8 +27,14 @@ from .options import force_option, input_argument, output_option
     metavar="S",
     help="Seconds over which the contact layer fades in and out.",
 )
+@click.option(
+    "--move-plants",
+    is_flag=True,
+    help="The edits moved the figure as a whole: planted feet move with them, horizontally "
+    "(by default they stay on their captured path).",
+)
 @force_option
-def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
+def bake(input_path, output, fps, layers, no_ik, ik_blend, move_plants, force):
     """Write the motion of document FILE as BVH (BVH source) or C3D (C3D source)."""
     from ..api import bake as op
 
@@ -46,4 +52,4 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, force):
         raise click.BadParameter(f"must not be negative, got {ik_blend}", param_hint="--ik-blend")
     doc = read_document(input_path)
     check_motion_output(doc.kind, output)
-    write_motion(op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend), output, force)
+    write_motion(op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend, move_plants=move_plants), output, force)

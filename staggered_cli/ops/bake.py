@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import contact_layer
+from .. import contact_layer, quat
 from ..document import Document
 from ..errors import UsageError
 from ..motion import (
@@ -16,7 +16,7 @@ from ..motion import (
     channels_from_local,
     rate_problem,
 )
-from ..sampling import local_pose, marker_points, reference_channels
+from ..sampling import at_times, local_pose, marker_points, reference_channels
 
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
 
@@ -26,7 +26,13 @@ MAX_OUTPUT_FRAMES = 10_000_000
 
 
 def bake(
-    doc: Document, *, fps: float | None = None, layers: str = "all", ik: bool = True, ik_blend: float = 0.1
+    doc: Document,
+    *,
+    fps: float | None = None,
+    layers: str = "all",
+    ik: bool = True,
+    ik_blend: float = 0.1,
+    move_plants: bool = False,
 ) -> BvhMotion | MarkerMotion:
     """Dense motion of ``doc`` at the source rate (or ``fps``).
 
@@ -36,6 +42,14 @@ def bake(
         displacement maps or the contact layer: what the poses capture).
     ik : apply the contact layer to disturbed constraints.
     ik_blend : seconds over which the layer fades in and out.
+    move_plants : the edits moved the figure as a whole: planted contacts
+        move with them, horizontally (by default they stay on their captured
+        path; see :mod:`staggered_cli.contact_layer`).
+
+    At another rate the contact layer is solved at the source's frames and
+    its correction resampled to the output's (slerp of each joint's local
+    correction, linear for markers), so that every rate repairs the same
+    contacts the same way.
     """
     if layers not in ("all", "splines"):
         raise UsageError(f"--layers must be 'all' or 'splines', got {layers!r}")
@@ -52,8 +66,10 @@ def bake(
             if channels is not None:
                 return src.with_channels(channels, None if same_rate else frame_time)
         rot, tr = local_pose(doc, t, layers)
-        if ik and layers == "all" and doc.constraints:
-            rot = contact_layer.joint_layer(doc, rot, tr, t, ik_blend, same_rate)
+        if use_layer and same_rate:
+            rot = contact_layer.joint_layer(doc, rot, tr, t, ik_blend, True, move_plants)
+        elif use_layer:
+            rot = _resampled_layer(doc, rot, t, ik_blend, move_plants)
         ref = reference_channels(doc, t)
         channels = channels_from_local(src.skeleton, rot, tr, ref)
         del rot, tr
@@ -69,8 +85,35 @@ def bake(
     src = doc.source
     pts = marker_points(doc, t, layers)
     if ik and layers == "all" and doc.constraints:
-        pts = contact_layer.marker_layer(doc, pts, t, ik_blend, same_rate)
+        if same_rate:
+            pts = contact_layer.marker_layer(doc, pts, t, ik_blend, True, move_plants)
+        else:  # solved at the source's frames, the correction resampled
+            native = marker_points(doc, doc.frame_times, layers)
+            corr = contact_layer.marker_layer(doc, native, doc.frame_times, ik_blend, True, move_plants) - native
+            del native
+            pts = pts + at_times(np.nan_to_num(corr), doc.frame_time, t)
     return src.with_points(pts, 1.0 / frame_time)
+
+
+def _resampled_layer(doc: Document, rot: np.ndarray, t: np.ndarray, blend: float, move_plants: bool) -> np.ndarray:
+    """Local rotations ``rot`` (N, J, 4) at output times ``t`` (another rate)
+    with the contact layer: solved at the source's frames, where it is
+    defined, and each joint's local correction there slerped to ``t``."""
+    ft = doc.frame_time
+    native, tr = local_pose(doc, doc.frame_times, "all")
+    solved = contact_layer.joint_layer(doc, native, tr, doc.frame_times, blend, True, move_plants)
+    if solved is native:
+        return rot
+    joints = np.flatnonzero(np.any(solved != native, axis=(0, 2)))
+    corr = quat.mul(quat.conj(native[:, joints]), solved[:, joints])  # (T, n, 4)
+    del native, solved, tr
+    corr = np.where(corr[..., :1] < 0.0, -corr, corr)  # corrections are under a half turn
+    f = np.clip(t / ft, 0, len(corr) - 1)
+    lo = np.floor(f).astype(int)
+    hi = np.minimum(lo + 1, len(corr) - 1)
+    out = rot.copy()
+    out[:, joints] = quat.mul(rot[:, joints], quat.slerp(corr[lo], corr[hi], (f - lo)[:, None]))
+    return out
 
 
 def _channels_by_blocks(
