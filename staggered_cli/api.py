@@ -846,7 +846,13 @@ def export_poses(doc: Document, *, on: str = "true") -> BvhMotion:
 
 
 def bake(
-    doc: Document, *, fps: float | None = None, layers: str = "all", ik: bool = True, ik_blend: float = 0.1
+    doc: Document,
+    *,
+    fps: float | None = None,
+    layers: str = "all",
+    ik: bool = True,
+    ik_blend: float = 0.1,
+    move_plants: bool = False,
 ) -> Motion:
     """The document's dense motion: splines, displacement maps, stacked
     layers and the contact layer.
@@ -862,6 +868,9 @@ def bake(
         Apply the contact (IK) layer.
     ik_blend : float
         Seconds over which the contact layer fades in and out.
+    move_plants : bool
+        The edits moved the figure as a whole: planted contacts move with
+        them, horizontally (by default they stay on their captured path).
 
     Returns
     -------
@@ -882,7 +891,7 @@ def bake(
     blend = _number(ik_blend, "ik_blend")
     if blend < 0:
         raise UsageError(f"{arg('ik_blend')} must not be negative, got {ik_blend}")
-    return op(doc, fps=rate, layers=layers, ik=ik, ik_blend=blend)
+    return op(doc, fps=rate, layers=layers, ik=ik, ik_blend=blend, move_plants=bool(move_plants))
 
 
 # --------------------------------------------------------------------------- looking

@@ -26,20 +26,16 @@ modified in place except the arrays they create.
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from . import quat
 from .contacts import up_direction
 from .document import Document
-from .errors import UsageError
+from .errors import UsageError, arg, warn
 from .ik import ik_layer, two_bone_chain
 from .motion import local_rotations_from_channels, local_translations_from_channels
 from .sampling import at_times
 from .skeleton import body_joints, forward_kinematics
-
-log = logging.getLogger(__name__)
 
 _UNDISTURBED = 1e-6  # of figure height
 _RESAMPLED = 1e-3  # of figure height, when baking at another rate
@@ -427,10 +423,16 @@ def _warn_unreached(doc: Document, todo: list, targets: list, reached: list, t: 
         elif not np.any((doc.pose_t >= c.start - half) & (doc.pose_t <= a + 1e-9)):
             ends.append(c.start)
     if ends:
-        way = f"add a pose at the contact's end (`cull --add-time {ends[0]:.3f}`) or bake with --no-ik"
+        way = (
+            f"add a pose at the contact's end (`cull --add-time {ends[0]:.3f}`) "
+            f"or bake with {arg('ik=False', '--no-ik')}"
+        )
     else:
-        way = "the edits at poses inside the contacts ask more than the legs reach: edit less, or bake with --no-ik"
-    log.warning(
+        way = (
+            "the edits at poses inside the contacts ask more than the legs reach: "
+            f"edit less, or bake with {arg('ik=False', '--no-ik')}"
+        )
+    warn(
         "the contact layer cannot keep %d planted contact%s on the captured path (the leg does not reach): %s%s; %s",
         len(missed),
         "" if len(missed) == 1 else "s",
@@ -489,9 +491,10 @@ def _warn_overridden(
     if len(cases) == 1:
         (((k, j), (asked, got, off, n)),) = cases.items()
         c = doc.constraints[n]
-        log.warning(
+        warn(
             "pose %d (%.3f s) %s: %s: the contact layer changes the edit to keep %s planted "
-            "(constraint %d, %.3f to %.3f s); bake with --no-ik, or drop the constraint with `constraints %s`",
+            f"(constraint %d, %.3f to %.3f s); bake with {arg('ik=False', '--no-ik')}, "
+            "or drop the constraint with `constraints %s`",
             k,
             doc.pose_t[k],
             sk.names[j],
@@ -506,9 +509,9 @@ def _warn_overridden(
     shown = sorted(cases.items())
     listed = ", ".join(f"pose {k} {sk.names[j]} {said(a, g, o)} (constraint {n})" for (k, j), (a, g, o, n) in shown[:4])
     more = f" and {len(shown) - 4} more" if len(shown) > 4 else ""
-    log.warning(
+    warn(
         "the contact layer changes %d edited joint rotations at poses to keep feet planted: %s%s; "
-        "bake with --no-ik, or drop the constraints with `constraints %s`",
+        f"bake with {arg('ik=False', '--no-ik')}, or drop the constraints with `constraints %s`",
         len(shown),
         listed,
         more,

@@ -4,7 +4,6 @@ takes back."""
 
 from __future__ import annotations
 
-import logging
 import tempfile
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from staggered_cli.io.c3d import read_c3d
 from staggered_cli.ops import edit_pose as E
 from staggered_cli.ops.bake import bake
 
-from .conftest import cli_document, dev_document, dev_motion, document_file, mocap, one_line_error
+from .conftest import cli_document, dev_document, dev_motion, document_file, mocap, one_line_error, staggered_warnings
 
 
 def run(args, input=None):
@@ -222,26 +221,24 @@ def test_c3d_bake_at_a_new_rate_keeps_its_analogs_to_the_end(fps, per_frame):
         np.testing.assert_allclose(baked.points[0], read_c3d(src_path).points[0], atol=1e-3, equal_nan=True)
 
 
-def test_bake_warns_when_the_contact_layer_takes_back_an_edit(cmu_walk, tmp_path, caplog):
+def test_bake_warns_when_the_contact_layer_takes_back_an_edit(cmu_walk, tmp_path):
     m, doc = cmu_walk
     k = 2  # inside LeftFoot's contact (constraint 1, 0.033 to 0.633 s)
     assert doc.constraints[1].joint == "LeftFoot" and doc.constraints[1].start < doc.pose_t[k] < doc.constraints[1].end
     edited = E.edit_pose(doc, k, rotate={"LeftUpLeg": (15.0, 0.0, 0.0)})
     f = int(round(doc.pose_t[k] / doc.frame_time))
     j = m.skeleton.index("LeftUpLeg")
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
+    with staggered_warnings() as lines:
         kept = bake(edited).local_rotations()[f, j]
-    lines = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     about = [x for x in lines if "LeftUpLeg" in x]
     assert len(about) == 1, lines
-    for needle in ("pose 2", "asked 15.0°, got ", "constraint 1", "LeftFoot", "--no-ik", "constraints --remove 1"):
+    for needle in ("pose 2", "asked 15.0°, got ", "constraint 1", "LeftFoot", "ik=False", "constraints --remove 1"):
         assert needle in about[0], about[0]
     # the layer kept less than half of the 15° (4.9°)
     assert np.degrees(quat.angle_between(kept, m.local_rotations()[f, j])) < 7.5
-    caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
+    with staggered_warnings() as seen:
         free = bake(edited, ik=False).local_rotations()[f, j]
-    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert not seen
     assert np.degrees(quat.angle_between(free, m.local_rotations()[f, j])) == pytest.approx(15.0, abs=1e-6)
     # the CLI prints it as one line on stderr and still writes the motion
     doc_path = document_file(edited, tmp_path / "doc.stag")

@@ -10,8 +10,6 @@ rate)."""
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 import pytest
 
@@ -22,7 +20,7 @@ from staggered_cli.ops.bake import bake
 from staggered_cli.sampling import at_times
 from staggered_cli.skeleton import body_joints
 
-from .conftest import dev_document, dev_motion
+from .conftest import dev_document, dev_motion, staggered_warnings
 
 #: Where a leg reaches, a plant stays this close to its captured path (of the height).
 ON_PATH = 1e-3
@@ -43,8 +41,11 @@ def _positions(motion) -> np.ndarray:
     return motion.world_positions() if hasattr(motion, "skeleton") else motion.points
 
 
-def _warnings(caplog) -> list[str]:
-    return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+def _baked_with_warnings(doc, **kwargs):
+    """The bake of ``doc`` and the library's warnings (Python's wording)."""
+    with staggered_warnings() as seen:
+        baked = bake(doc, **kwargs)
+    return baked, list(seen)
 
 
 def _plants(doc, m, baked, k: float, size: float):
@@ -83,7 +84,7 @@ HIPS_FILES = [
 
 
 @pytest.mark.parametrize("name", HIPS_FILES)
-def test_a_hips_translation_keeps_planted_feet_on_their_path_and_above_the_floor(name, caplog):
+def test_a_hips_translation_keeps_planted_feet_on_their_path_and_above_the_floor(name):
     """Culled to 12 poses, the hips moved 5 % of the height down, up, forward
     and sideways at inner poses: where the legs reach, each planted effector
     stays within 0.1 % of the height of its captured path and moves with it
@@ -103,16 +104,14 @@ def test_a_hips_translation_keeps_planted_feet_on_their_path_and_above_the_floor
     for k in (2, 4, 6):
         for what, v in moves.items():
             edited = E.edit_pose(doc, k, translate={root: tuple(0.05 * size * v)})
-            caplog.clear()
-            with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-                baked = bake(edited)
-            lines = [x for x in _warnings(caplog) if "does not reach" in x]
+            baked, seen = _baked_with_warnings(edited)
+            lines = [x for x in seen if "does not reach" in x]
             assert len(lines) <= 1, lines  # one summary line per bake
             for c, dev, below, step in _plants(doc, m, baked, doc.pose_t[k], size):
                 assert below < 1e-4, (what, k, c, below)
                 if lines and (c.joint in lines[0] or " more;" in lines[0]):
                     warned += 1
-                    for needle in ("% of the height", "--no-ik"):
+                    for needle in ("% of the height", "ik=False"):
                         assert needle in lines[0], lines[0]
                     assert "cull --add-time" in lines[0] or "edit less" in lines[0], lines[0]
                     continue
@@ -126,7 +125,7 @@ def test_a_hips_translation_keeps_planted_feet_on_their_path_and_above_the_floor
         pytest.fail("no hips edit was out of a leg's reach")
 
 
-def test_hips_lowered_at_a_double_support_pose_keep_both_feet_up(cmu_walk, caplog):
+def test_hips_lowered_at_a_double_support_pose_keep_both_feet_up(cmu_walk):
     """The issue's case: cmu_02_01 culled to 12, pose 4 (double support), hips
     5 % of the height lower: both planted feet stay on their captured path
     (before: 4.3-4.7 % below it, under the lowest point the toes reach)."""
@@ -134,9 +133,9 @@ def test_hips_lowered_at_a_double_support_pose_keep_both_feet_up(cmu_walk, caplo
     doc = _culled("cmu_02_01_walk.bvh")
     size = m.figure_height()
     edited = E.edit_pose(doc, 4, translate={"Hips": (0.0, -0.05 * size, 0.0)})
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-        plants = _plants(doc, m, bake(edited), doc.pose_t[4], size)
-    assert not [x for x in _warnings(caplog) if "does not reach" in x]
+    baked, seen = _baked_with_warnings(edited)
+    plants = _plants(doc, m, baked, doc.pose_t[4], size)
+    assert not [x for x in seen if "does not reach" in x]
     assert len({c.joint for c, *_ in plants}) >= 3
     for c, dev, below, _ in plants:
         assert dev <= ON_PATH and below == 0.0, (c, dev, below)
@@ -201,7 +200,7 @@ def test_c3d_planted_markers_stay_on_their_path_when_moved(name):
     assert checked >= 4
 
 
-def test_a_leg_that_cannot_reach_says_so_once_and_misses_smoothly(cmu_walk, caplog):
+def test_a_leg_that_cannot_reach_says_so_once_and_misses_smoothly(cmu_walk):
     """Hips 5 % of the height higher at a single-support pose: the stance leg
     cannot reach.  One line names the contact, the miss and the way out.
     Inside the contact the miss grows and shrinks no faster than the edit
@@ -214,12 +213,11 @@ def test_a_leg_that_cannot_reach_says_so_once_and_misses_smoothly(cmu_walk, capl
     size = m.figure_height()
     k = 6  # 1.4 s: only LeftFoot and LeftToeBase planted
     edited = E.edit_pose(doc, k, translate={"Hips": (0.0, 0.05 * size, 0.0)})
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-        baked = bake(edited)
-    lines = [x for x in _warnings(caplog) if "does not reach" in x]
-    assert len(lines) == 1, _warnings(caplog)
+    baked, seen = _baked_with_warnings(edited)
+    lines = [x for x in seen if "does not reach" in x]
+    assert len(lines) == 1, seen
     # poses 5 and 7 bound the contact: no pose to add, the edit asks too much
-    for needle in ("LeftFoot 1.", "% of the height", "edit less", "--no-ik"):
+    for needle in ("LeftFoot 1.", "% of the height", "edit less", "ik=False"):
         assert needle in lines[0], lines[0]
     foot = [p for p in _plants(doc, m, baked, doc.pose_t[k], size) if p[0].joint == "LeftFoot"]
     (c, dev, below, step) = foot[0]
@@ -230,13 +228,11 @@ def test_a_leg_that_cannot_reach_says_so_once_and_misses_smoothly(cmu_walk, capl
     edit_rate = np.linalg.norm(np.diff(hips, axis=0), axis=1).max() / size
     assert 0.002 < edit_rate < 0.004
     assert step <= max(ON_PATH, 1.05 * edit_rate), (step, edit_rate)
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-        caplog.clear()
-        bake(edited, ik=False)
-    assert not _warnings(caplog)
+    _, seen = _baked_with_warnings(edited, ik=False)
+    assert not seen
 
 
-def test_hips_raised_in_the_air_name_the_takeoff_and_a_pose_at_its_end_keeps_it(caplog):
+def test_hips_raised_in_the_air_name_the_takeoff_and_a_pose_at_its_end_keeps_it():
     """cmu_01_01: the hips raised 12 % of the height at the extreme pose near
     the top of the first jump reach back into the takeoff contact: the toes
     cannot stay down (before: up to 2.1 % up, nothing said).  The line names
@@ -247,20 +243,17 @@ def test_hips_raised_in_the_air_name_the_takeoff_and_a_pose_at_its_end_keeps_it(
     size = m.figure_height()
     k = int(np.argmin(np.abs(doc.pose_t - 1.94)))
     edited = E.edit_pose(doc, k, on="extreme", translate={"Hips": (0.0, 0.12 * size, 0.0)})
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-        baked = bake(edited)
-    lines = [x for x in _warnings(caplog) if "does not reach" in x]
-    assert len(lines) == 1, _warnings(caplog)
+    baked, seen = _baked_with_warnings(edited)
+    lines = [x for x in seen if "does not reach" in x]
+    assert len(lines) == 1, seen
     assert "LeftToeBase 1.8" in lines[0] and "cull --add-time 1.875" in lines[0], lines[0]
     toe = [p for p in _plants(doc, m, baked, 1.8, size) if p[0].joint == "LeftToeBase" and p[0].end < 1.9]
     assert 0.01 < toe[0][1] < 0.05
     held = cull.add_pose(doc, 1.875)
     k = int(np.argmin(np.abs(held.pose_t - 1.94)))
     edited = E.edit_pose(held, k, on="extreme", translate={"Hips": (0.0, 0.12 * size, 0.0)})
-    caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-        baked = bake(edited)
-    assert not [x for x in _warnings(caplog) if "does not reach" in x]
+    baked, seen = _baked_with_warnings(edited)
+    assert not [x for x in seen if "does not reach" in x]
     for c, dev, below, _ in _plants(held, m, baked, 1.8, size):
         if c.end < 1.9:
             assert dev <= ON_PATH and below == 0.0, (c, dev)
@@ -270,7 +263,7 @@ def test_hips_raised_in_the_air_name_the_takeoff_and_a_pose_at_its_end_keeps_it(
     "name, hip, axes",
     [("cmu_02_01_walk.bvh", "LeftUpLeg", (15, 0, 0)), ("bandai1_walk_normal_001.bvh", "UpperLeg_L", (0, 0, 15))],
 )
-def test_the_override_warning_says_what_was_asked_and_what_was_got(name, hip, axes, caplog):
+def test_the_override_warning_says_what_was_asked_and_what_was_got(name, hip, axes):
     """A 15° hip rotation at a pose inside the foot's contact: the layer keeps
     a fraction of it; the warning names pose, joint, asked and got, the
     survival measured along the edit's own axis."""
@@ -281,10 +274,9 @@ def test_the_override_warning_says_what_was_asked_and_what_was_got(name, hip, ax
         if any(c.joint.startswith(("LeftFoot", "Foot_L")) and c.start < doc.pose_t[k] < c.end for c in doc.constraints)
     )
     edited = E.edit_pose(doc, k, rotate={hip: axes})
-    with caplog.at_level(logging.WARNING, logger="staggered_cli"):
-        bake(edited)
-    lines = [x for x in _warnings(caplog) if hip in x]
-    assert len(lines) == 1, _warnings(caplog)
+    _, seen = _baked_with_warnings(edited)
+    lines = [x for x in seen if hip in x]
+    assert len(lines) == 1, seen
     assert f"pose {k} " in lines[0] and "asked 15.0°, got " in lines[0] and "off-axis" in lines[0], lines[0]
     got = float(lines[0].split("got ")[1].split("°")[0])
     assert abs(got) < 7.5  # less than half survives
@@ -293,11 +285,10 @@ def test_the_override_warning_says_what_was_asked_and_what_was_got(name, hip, ax
 @pytest.mark.parametrize(
     "name, arm", [("cmu_02_01_walk.bvh", "LeftArm"), ("bandai1_walk_normal_001.bvh", "UpperArm_L")]
 )
-def test_the_override_warning_is_silent_on_a_succession_down_an_arm(name, arm, caplog):
+def test_the_override_warning_is_silent_on_a_succession_down_an_arm(name, arm):
     doc = timing.succession(dev_document(name), 0.03, 1.5, joint=arm, clamp=True)
-    with caplog.at_level(logging.WARNING, logger="staggered_cli.contact_layer"):
-        bake(doc)
-    assert not [r for r in caplog.records if r.name == "staggered_cli.contact_layer"]
+    _, seen = _baked_with_warnings(doc)
+    assert not [x for x in seen if "contact layer" in x or "asked" in x], seen
 
 
 @pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh"])

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import contact_layer, quat
 from ..document import Document
-from ..errors import UsageError
+from ..errors import UsageError, arg
 from ..motion import (
     BvhMotion,
     MarkerMotion,
@@ -52,9 +52,9 @@ def bake(
     contacts the same way.
     """
     if layers not in ("all", "splines"):
-        raise UsageError(f"--layers must be 'all' or 'splines', got {layers!r}")
+        raise UsageError(f"{arg('layers')} must be 'all' or 'splines', got {layers!r}")
     if not np.isfinite(ik_blend) or ik_blend < 0:
-        raise UsageError(f"--ik-blend must be a non-negative number of seconds, got {ik_blend}")
+        raise UsageError(f"{arg('ik_blend')} must be a non-negative number of seconds, got {ik_blend}")
     t = output_times(doc, fps)
     same_rate = is_same_rate(doc, fps)
     frame_time = doc.frame_time if same_rate else 1.0 / fps
@@ -168,15 +168,15 @@ def is_same_rate(doc: Document, fps: float | None) -> bool:
 def output_times(doc: Document, fps: float | None = None) -> np.ndarray:
     """Frame times (seconds) to bake at: the source's, or a new rate over the same span."""
     if fps is not None and (not np.isfinite(fps) or fps <= 0):
-        raise UsageError(f"--fps must be a positive number, got {fps}")
+        raise UsageError(f"{arg('fps')} must be a positive number, got {fps}")
     if fps is not None and rate_problem(fps) is not None:
-        raise UsageError(f"--fps {fps:g} {rate_problem(fps)}")
+        raise UsageError(f"{arg('fps')} {fps:g} {rate_problem(fps)}")
     if is_same_rate(doc, fps):
         return doc.frame_times
     n = int(np.floor(doc.duration * fps + 1e-3)) + 1  # a frame within 1/1000 of the end counts
     if fps > MAX_FPS_FACTOR * doc.source.rate or n > MAX_OUTPUT_FRAMES:
         raise UsageError(
-            f"--fps {fps:g} is out of range: at most {MAX_FPS_FACTOR}x the source's {doc.source.rate:g} Hz "
+            f"{arg('fps')} {fps:g} is out of range: at most {MAX_FPS_FACTOR}x the source's {doc.source.rate:g} Hz "
             f"and {MAX_OUTPUT_FRAMES} frames"
         )
     return np.minimum(np.arange(n) / fps, doc.duration)
