@@ -23,9 +23,9 @@ import logging
 import numpy as np
 
 from . import quat
-from .document import Document
 from .errors import UsageError
 from .ik import ik_layer, two_bone_chain
+from .model.document import Document
 from .motion import local_rotations_from_channels, local_translations_from_channels
 from .sampling import at_times
 from .skeleton import forward_kinematics

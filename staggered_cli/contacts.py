@@ -48,8 +48,8 @@ import re
 import numpy as np
 
 from . import quat
-from .document import Constraint
 from .errors import UsageError
+from .model.document import Constraint
 from .motion import BvhMotion, MarkerMotion
 from .names import resolve
 from .skeleton import body_joints

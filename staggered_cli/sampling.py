@@ -9,9 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import quat
-from .document import Document
+from .model.document import Document
+from .model.evaluate import evaluate
+from .model.kinds import ROTATION
 from .motion import BvhMotion, MarkerMotion, rotation_columns
-from .representation import ROTATION, evaluate
 
 
 def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.ndarray, np.ndarray]:

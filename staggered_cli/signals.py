@@ -65,11 +65,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import quat
-from .document import Document
+from .model.document import Document
+from .model.kinds import ROTATION
+from .model.variables import dense_variables
 from .motion import BvhMotion, MarkerMotion
-from .representation import ROTATION
 from .skeleton import Skeleton
-from .variables import dense_variables
 
 #: A rotation step larger than this between two frames is a discontinuity of
 #: that variable (degrees): no joint turns 100° in one frame, even at 30 Hz.

@@ -14,9 +14,9 @@ import pytest
 from staggered_cli import contact_layer
 from staggered_cli.io import bvh
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
+from staggered_cli.model.evaluate import evaluate, evaluate_at
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.extract import extract
-from staggered_cli.representation import evaluate, evaluate_at
 
 from .conftest import BVH_FILES, mocap
 
@@ -134,8 +134,9 @@ def test_round_trip_bake_is_the_source(doc, fmt):
 def test_layer_at_equals_the_spline_over_every_segment(doc):
     """layer_at gathers the segments its queries meet: the same bits as the
     spline evaluated with every segment of the layer."""
-    from staggered_cli import kinds
-    from staggered_cli.representation import _locate, layer_at
+    from staggered_cli.model import kinds
+    from staggered_cli.model.evaluate import layer_at
+    from staggered_cli.model.knots import locate
 
     t = doc.frame_times[50:900]
     for track in doc.tracks:
@@ -148,7 +149,7 @@ def test_layer_at_equals_the_spline_over_every_segment(doc):
         u = np.zeros(len(tt))
         for i in range(V):
             idx = np.flatnonzero(var == i)
-            seg, u[idx] = _locate(knots.t[knots.of(i)], tt[idx])
+            seg, u[idx] = locate(knots.t[knots.of(i)], tt[idx])
             gseg[idx] = seg + knots.seg_ptr[i]
         first = knots.seg_first
         ref = kinds.ops_for(track.kind).spline_at(knots.v[first], layer.tan_a, layer.tan_b, knots.v[first + 1], gseg, u)

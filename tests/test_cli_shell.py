@@ -470,7 +470,7 @@ def test_detect_kind():
 
 def test_info_on_a_document_npz_and_json(tmp_path):
     from staggered_cli.io.document import to_parts
-    from staggered_cli.variables import from_motion
+    from staggered_cli.model.variables import from_motion
 
     sample = ROOT / "data" / "samples" / "march.bvh"
     if not sample.exists():

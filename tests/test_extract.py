@@ -473,8 +473,8 @@ def test_a_long_clips_fit_a_joint_at_a_time_gives_the_same_document(monkeypatch,
     """Past BY_COLUMN_BYTES of rotations (an hour at 120 Hz), extract drops
     the clip's rotations before the fit and the fit makes each joint's as it
     takes it: forced on a dev clip, the same document bytes."""
-    from staggered_cli import variables
     from staggered_cli.io.bvh import read_bvh
+    from staggered_cli.model import variables
 
     want = document_bytes(*to_parts(_extracted(name)), "npz")
     monkeypatch.setattr(variables, "BY_COLUMN_BYTES", 0)

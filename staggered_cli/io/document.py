@@ -45,10 +45,11 @@ from typing import Any
 
 import numpy as np
 
-from ..document import MAX_LAYERS, Constraint, Document, variable_layout
 from ..errors import DataError
+from ..model.document import MAX_LAYERS, Constraint, Document, variable_layout
+from ..model.kinds import ROTATION, TRANSLATION
+from ..model.knots import Knots, Layer, Track
 from ..motion import BvhMotion, MarkerMotion, frame_time_problem, rate_problem
-from ..representation import ROTATION, TRANSLATION, Knots, Layer, Track
 from ..skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
 
 FORMAT_NAME = "staggered-poses"
@@ -1264,7 +1265,7 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
     """Layer ``lay`` of track ``n``, checked against its poses ``pose_t``: every
     variable has one extreme knot per pose, in pose order; the base layer's
     editing knots sit at their pose times, and a layer above it has none."""
-    from ..representation import check_knot_order
+    from ..model.knots import check_knot_order
 
     K = len(pose_t)
     V = len(names)

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import contact_layer
-from ..document import Document
 from ..errors import UsageError
+from ..model.document import Document
 from ..motion import (
     BvhMotion,
     MarkerMotion,

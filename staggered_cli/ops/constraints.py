@@ -8,11 +8,11 @@ re-detected constraint is, is decided here.  Pure functions of the document.
 from __future__ import annotations
 
 from ..contacts import DEFAULT_MIN_CONTACT, DEFAULT_TOLERANCE, contact_joints, detect_contacts
-from ..document import Constraint, Document
 from ..errors import UsageError
 from ..ik import two_bone_chain
+from ..model.document import Constraint, Document
+from ..model.timewarp import from_pairs
 from ..motion import BvhMotion
-from ..timewarp import from_pairs
 
 
 def checked_span(doc: Document, joint: str, start: float, end: float) -> tuple[str, float, float]:

@@ -12,9 +12,13 @@ import logging
 import numpy as np
 
 from .. import placement, quat
-from ..document import Document, check_pose_index, pose_near
 from ..errors import UsageError
-from ..representation import ROTATION, evaluate, evaluate_at, knots_from_poses, pose_arrays, restructure
+from ..model.document import Document, check_pose_index, pose_near
+from ..model.evaluate import evaluate, evaluate_at
+from ..model.fit import knots_from_poses
+from ..model.kinds import ROTATION
+from ..model.knots import pose_arrays
+from ..model.restructure import restructure
 from ..signals import reprioritized
 
 log = logging.getLogger(__name__)

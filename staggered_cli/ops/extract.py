@@ -27,7 +27,7 @@
    the "closer to its own pose" rule keeps every variable's knots in order.
    Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
    last pose) stays for ``cull --by paper``.
-7. Splines and displacement maps: :func:`staggered_cli.variables.from_motion`.
+7. Splines and displacement maps: :func:`staggered_cli.model.variables.from_motion`.
 
 Significance gate
     The scaled curvature ignores amplitude: a figure swaying by a centimetre
@@ -51,10 +51,10 @@ import numpy as np
 
 from .. import contacts as contact_detection
 from .. import ik, placement, signals
-from ..document import Document
 from ..errors import DataError, UsageError
+from ..model.document import Document
+from ..model.variables import dense_variables, fits_by_column, from_motion
 from ..motion import BvhMotion, MarkerMotion, rate_problem
-from ..variables import dense_variables, fits_by_column, from_motion
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5

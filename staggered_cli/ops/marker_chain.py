@@ -21,7 +21,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..representation import TRANSLATION, Layer, Track, evaluate_at, fit_layer
+from ..model.evaluate import evaluate_at
+from ..model.fit import fit_layer
+from ..model.kinds import TRANSLATION
+from ..model.knots import Layer, Track
 
 #: Frames (evenly spread) that judge how rigid a pair of markers is: enough
 #: for the spread of a distance, and (frames x markers²) stays small.
