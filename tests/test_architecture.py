@@ -94,11 +94,11 @@ def _violations(layers: tuple[str, ...], forbidden: tuple[str, ...]) -> set[tupl
 
 
 def test_the_graph_sees_the_whole_package():
-    expected = {"staggered_cli.document", "staggered_cli.ops.bake", "staggered_cli.cli.main", "staggered_cli.io.bvh"}
+    expected = {"staggered_cli.model.document", "staggered_cli.ops.bake", "staggered_cli.cli.main", "staggered_cli.io.bvh"}
     assert expected <= set(GRAPH)
-    # the parser resolves relative imports: ops/bake's ``from ..document import Document``
-    assert "staggered_cli.document" in GRAPH["staggered_cli.ops.bake"]
-    assert _layer("staggered_cli.kinds") == "model" and _layer("staggered_cli.ops.cull") == "ops"
+    # the parser resolves relative imports: ops/bake's ``from ..model.document import Document``
+    assert "staggered_cli.model.document" in GRAPH["staggered_cli.ops.bake"]
+    assert _layer("staggered_cli.model.kinds") == "model" and _layer("staggered_cli.ops.cull") == "ops"
 
 
 @pytest.mark.parametrize(

@@ -122,7 +122,8 @@ def test_source_changed_on_chains_equals_all_joints(doc):
 def test_round_trip_bake_is_the_source(doc, fmt):
     """Through a document file too: its source.channels are the numbers the
     writer compares with."""
-    from staggered_cli.io.document import document_pieces, from_parts, parse_document, to_parts
+    from staggered_cli.io.container import document_pieces, parse_document
+    from staggered_cli.io.schema import from_parts, to_parts
 
     assert bvh_bytes(bake(doc)) == mocap(CLIP).read_bytes()
     data = b"".join(bytes(p) for p in document_pieces(*to_parts(doc), fmt))
@@ -202,7 +203,8 @@ def test_stored_members_read_as_numpy_reads_them(doc, tmp_path):
     from bytes and from a file, and a flipped byte fails the CRC."""
     import io
 
-    from staggered_cli.io.document import _read_npz, document_pieces, to_parts
+    from staggered_cli.io.container import _read_npz, document_pieces
+    from staggered_cli.io.schema import to_parts
 
     data = b"".join(bytes(p) for p in document_pieces(*to_parts(doc), "npz"))
     ref = np.load(io.BytesIO(data))

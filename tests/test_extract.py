@@ -17,7 +17,8 @@ from staggered_cli import contacts as C
 from staggered_cli import sampling
 from staggered_cli import signals as S
 from staggered_cli.errors import UsageError
-from staggered_cli.io.document import document_bytes, to_parts
+from staggered_cli.io.container import document_bytes
+from staggered_cli.io.schema import to_parts
 from staggered_cli.motion import BvhMotion, channels_from_local
 from staggered_cli.ops.extract import extract, refinement_frames
 

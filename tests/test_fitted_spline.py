@@ -12,7 +12,7 @@ import pytest
 
 from staggered_cli import quat
 from staggered_cli.io.bvh import bvh_bytes
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
 from staggered_cli.model.evaluate import fitted_spline, layer_at
 from staggered_cli.model.kinds import ROTATION
 from staggered_cli.ops import layers, timing

@@ -19,7 +19,8 @@ from click.testing import CliRunner
 
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
-from staggered_cli.io.document import DOCUMENT_VERSION, document_bytes, from_parts, parse_document, to_parts
+from staggered_cli.io.container import document_bytes, parse_document
+from staggered_cli.io.schema import DOCUMENT_VERSION, from_parts, to_parts
 from staggered_cli.model.evaluate import evaluate
 from staggered_cli.model.restructure import restructure
 from staggered_cli.ops import layers

@@ -11,7 +11,8 @@ from click.testing import CliRunner
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
-from staggered_cli.io.document import from_parts, parse_document
+from staggered_cli.io.container import parse_document
+from staggered_cli.io.schema import from_parts
 from staggered_cli.motion import BvhMotion, local_rotations_from_channels, rotation_columns
 from staggered_cli.ops import pose_file as P
 from staggered_cli.ops.bake import bake

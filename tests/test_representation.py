@@ -7,7 +7,7 @@ import pytest
 
 from staggered_cli import quat, sampling
 from staggered_cli.io.bvh import read_bvh
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
 from staggered_cli.model import variables
 from staggered_cli.model.evaluate import evaluate
 from staggered_cli.model.restructure import restructure, with_knot_times
@@ -180,7 +180,7 @@ def test_extract_in_groups_and_blocks_gives_the_same_bits(monkeypatch):
     steps and the placement proxy over small blocks of frames: the same
     document to the bit (every segment and frame is its own)."""
     from staggered_cli import motion, placement, signals
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io.container import document_bytes
     from staggered_cli.model import fit
     from staggered_cli.ops.extract import extract
 
@@ -200,8 +200,8 @@ def test_cull_and_succession_in_small_groups_give_the_same_bits(monkeypatch, tmp
     small pieces: the same documents to the bit as whole processing."""
     from staggered_cli import placement
     from staggered_cli.cli.common import read_document
-    from staggered_cli.io import document as document_io
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io import container
+    from staggered_cli.io.container import document_bytes
     from staggered_cli.model import fit
     from staggered_cli.ops import cull, timing
 
@@ -220,7 +220,7 @@ def test_cull_and_succession_in_small_groups_give_the_same_bits(monkeypatch, tmp
     monkeypatch.setattr(fit, "FIT_GROUP", 3000)  # about one variable a group
     monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
     monkeypatch.setattr(quat, "_UNROLL_BLOCK", 31 * 4 * 7)
-    monkeypatch.setattr(document_io, "_READ_CHUNK", 1000)
+    monkeypatch.setattr(container, "_READ_CHUNK", 1000)
     assert steps(doc) == whole
     read_small = read_document(str(path))
     assert document_bytes(*to_parts(read_small), "npz") == document_bytes(*to_parts(read_whole), "npz")

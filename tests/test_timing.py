@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
 from staggered_cli.ops import timing
 from staggered_cli.ops.bake import bake
 

@@ -15,8 +15,8 @@ from .options import check_output, document_format, emit, load_document
 def read_document(path: str):
     """The :class:`~staggered_cli.model.document.Document` in ``path`` (``-``: stdin,
     where a batch's previous step may have handed over the Document itself)."""
-    from ..io.document import from_parts
     from ..io.files import STDIO, display_name
+    from ..io.schema import from_parts
 
     if path == STDIO:
         handed = getattr(getattr(sys.stdin, "buffer", None), "document", None)
@@ -33,8 +33,9 @@ def read_document(path: str):
 def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
     """Serialize ``doc`` and write it atomically (or to stdout; to a batch's
     pipe between two steps, the Document itself is handed over)."""
-    from ..io.document import document_pieces, to_parts
+    from ..io.container import document_pieces
     from ..io.files import STDIO
+    from ..io.schema import to_parts
 
     check_document_output(output)
     pipe = getattr(sys.stdout, "buffer", None) if output == STDIO else None

@@ -71,10 +71,10 @@ def c3d_summary(motion) -> dict[str, Any]:
 def document_info(manifest: dict, arrays: dict) -> dict[str, Any]:
     """Summary of a document, from the representation's hook.
 
-    Hook: ``model.document.document_summary(io.document.from_parts(manifest, arrays)) -> dict``
+    Hook: ``model.document.document_summary(io.schema.from_parts(manifest, arrays)) -> dict``
     (JSON-able; includes ``frames`` and ``frame_time``).
     """
-    from staggered_cli.io.document import from_parts
+    from staggered_cli.io.schema import from_parts
     from staggered_cli.model.document import document_summary
 
     return {"kind": "document", **document_summary(from_parts(manifest, arrays))}

@@ -111,7 +111,7 @@ def detect_kind(data: bytes) -> str:
     Extensions are not looked at (SPEC section 1).  Raises ``ValueError`` for
     anything else; :func:`load_input` turns that into a ``DataError``.
     """
-    from ..io.document import is_document
+    from ..io.container import is_document
 
     if is_document(data):
         return "document"
@@ -163,7 +163,7 @@ def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
     """
     zipped = files.open_zip(path)
     if zipped is not None:  # an NPZ document, read from the file: no copy of it in memory
-        from ..io.document import parse_document
+        from ..io.container import parse_document
 
         name = files.display_name(path)
         with zipped:
@@ -179,7 +179,7 @@ def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
         raise DataError(str(err), source=name) from None
     try:
         if kind == "document":
-            from ..io.document import parse_document
+            from ..io.container import parse_document
 
             return parse_document(data, name)
         if kind == "c3d":
@@ -227,7 +227,7 @@ def emit(path: str, data, force: bool) -> None:
         # of pieces, the first tells what it is (a zip header, or all the JSON)
         head = bytes(memoryview(data[0] if isinstance(data, list | tuple) and data else data)[:8192])
         if _is_binary(head) and out is not None and out.isatty():
-            from ..io.document import is_document
+            from ..io.container import is_document
 
             if is_document(head):
                 hint = "refusing to write a binary (NPZ) document to the terminal: use -o FILE or --format json"

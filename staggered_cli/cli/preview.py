@@ -59,8 +59,8 @@ def parse_at(value: str | None) -> tuple[str | None, int | None]:
 
 def _subject(path: str):
     """A document (as :class:`~staggered_cli.model.document.Document`) or a clip."""
-    from ..io.document import from_parts
     from ..io.files import display_name
+    from ..io.schema import from_parts
 
     obj = load_input(path)
     if not isinstance(obj, tuple):

@@ -325,3 +325,16 @@ def document_summary(doc: Document) -> dict:
     else:
         out["markers"] = list(src.labels)
     return out
+
+
+def tree_has_loop(tree: dict) -> bool:
+    """Whether ``{child: parent}`` leads from some marker back to itself."""
+    for start in tree:
+        seen = {start}
+        j = tree.get(start)
+        while j is not None:
+            if j in seen:
+                return True
+            seen.add(j)
+            j = tree.get(j)
+    return False
