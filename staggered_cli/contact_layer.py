@@ -26,8 +26,8 @@ from . import quat
 from .errors import UsageError
 from .ik import ik_layer, two_bone_chain
 from .model.document import Document
+from .model.sampling import at_times
 from .motion import local_rotations_from_channels, local_translations_from_channels
-from .sampling import at_times
 from .skeleton import forward_kinematics
 
 log = logging.getLogger(__name__)

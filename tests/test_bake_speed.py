@@ -99,7 +99,7 @@ def test_evaluate_in_blocks_equals_evaluate_at(doc):
 
 
 def test_source_changed_on_chains_equals_all_joints(doc):
-    from staggered_cli.sampling import local_pose
+    from staggered_cli.model.sampling import local_pose
 
     src = doc.source
     rot, tr = local_pose(doc, doc.frame_times[:500])

@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import quat, sampling
+from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh
 from staggered_cli.io.container import parse_document
 from staggered_cli.io.schema import from_parts
+from staggered_cli.model import sampling
 from staggered_cli.model.kinds import TRANSLATION
 from staggered_cli.motion import BvhMotion
 from staggered_cli.ops import edit_pose as E

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import quat, sampling
+from staggered_cli import quat
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.schema import from_parts, to_parts
-from staggered_cli.model import variables
+from staggered_cli.model import sampling, variables
 from staggered_cli.model.evaluate import evaluate
 from staggered_cli.model.restructure import restructure, with_knot_times
 from staggered_cli.motion import channels_from_local
@@ -179,16 +179,17 @@ def test_extract_in_groups_and_blocks_gives_the_same_bits(monkeypatch):
     """The fit over groups of a few variables, forward kinematics, rotation
     steps and the placement proxy over small blocks of frames: the same
     document to the bit (every segment and frame is its own)."""
-    from staggered_cli import motion, placement, signals
+    from staggered_cli import motion
     from staggered_cli.io.container import document_bytes
     from staggered_cli.model import fit
     from staggered_cli.ops.extract import extract
+    from staggered_cli.signals import placement, trails
 
     path = mocap("cmu_01_01_forward_jumps.bvh")
     once = document_bytes(*to_parts(extract(read_bvh(path))), "npz")
     monkeypatch.setattr(fit, "FIT_GROUP", 3000)  # about one variable a group
     monkeypatch.setattr(motion, "_FK_BLOCK", 31 * 100)
-    monkeypatch.setattr(signals, "_STEP_BLOCK", 32 * 77)
+    monkeypatch.setattr(trails, "_STEP_BLOCK", 32 * 77)
     monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
     assert document_bytes(*to_parts(extract(read_bvh(path))), "npz") == once
 
@@ -198,12 +199,12 @@ def test_cull_and_succession_in_small_groups_give_the_same_bits(monkeypatch, tmp
     groups of about one variable, carried variables one by one), the proxy's
     path and quat.unroll over small blocks of frames, and a document read in
     small pieces: the same documents to the bit as whole processing."""
-    from staggered_cli import placement
     from staggered_cli.cli.common import read_document
     from staggered_cli.io import container
     from staggered_cli.io.container import document_bytes
     from staggered_cli.model import fit
     from staggered_cli.ops import cull, timing
+    from staggered_cli.signals import placement
 
     doc = dev_document("cmu_01_01_forward_jumps.bvh")
 

@@ -10,13 +10,13 @@ import numpy as np
 from .. import contact_layer
 from ..errors import UsageError
 from ..model.document import Document
+from ..model.sampling import local_pose, marker_points, reference_channels
 from ..motion import (
     BvhMotion,
     MarkerMotion,
     channels_from_local,
     rate_problem,
 )
-from ..sampling import local_pose, marker_points, reference_channels
 
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
 

@@ -11,7 +11,7 @@ import logging
 
 import numpy as np
 
-from .. import placement, quat
+from .. import quat
 from ..errors import UsageError
 from ..model.document import Document, check_pose_index, pose_near
 from ..model.evaluate import evaluate, evaluate_at
@@ -19,7 +19,8 @@ from ..model.fit import knots_from_poses
 from ..model.kinds import ROTATION
 from ..model.knots import pose_arrays
 from ..model.restructure import restructure
-from ..signals import reprioritized
+from ..signals import placement
+from ..signals.probability import reprioritized
 
 log = logging.getLogger(__name__)
 
@@ -169,7 +170,7 @@ def best_subset(
     them) whose spline layer fits the document's motion best.
 
     Every variable keeps its own knots (refinements included): the misfit of
-    a kept set is, in the proxy of :mod:`staggered_cli.placement`, the sum of
+    a kept set is, in the proxy of :mod:`staggered_cli.signals.placement`, the sum of
     each kept pose's own staggered span and of the segments between the last
     knot of one kept pose and the first knot of the next, found by dynamic
     programming over the poses (a segment spans at most a few times the

@@ -23,8 +23,8 @@ from ..model.document import Document, require_bvh, variable_layout
 from ..model.fit import knots_from_poses
 from ..model.kinds import ROTATION, TRANSLATION, ops_for
 from ..model.knots import Layer, Track, pose_arrays
+from ..model.sampling import reference_channels
 from ..motion import BvhMotion, channels_from_local, nominal_rate
-from ..sampling import reference_channels
 from .edit_pose import joint_mask
 
 #: What counts as a change when a pose file comes back (issue 15).

@@ -22,7 +22,7 @@ from ..model.kinds import ROTATION, TRANSLATION
 from ..model.knots import Track, pose_arrays
 from ..model.restructure import restructure, with_knot_times
 from ..model.timewarp import warp
-from ..signals import reprioritized
+from ..signals.probability import reprioritized
 from . import marker_chain
 from .edit_pose import joint_mask
 
