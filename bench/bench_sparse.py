@@ -26,11 +26,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from staggered_cli.io.bvh import read_bvh  # noqa: E402
+from staggered_cli.model.sampling import local_pose  # noqa: E402
+from staggered_cli.model.variables import from_motion  # noqa: E402
 from staggered_cli.ops import cull  # noqa: E402
 from staggered_cli.ops.extract import extract  # noqa: E402
-from staggered_cli.sampling import local_pose  # noqa: E402
 from staggered_cli.skeleton import forward_kinematics  # noqa: E402
-from staggered_cli.variables import from_motion  # noqa: E402
 from tests.conftest import MOCAP  # noqa: E402
 
 KEEPS = ("50%", "25%", "10%")

@@ -188,7 +188,7 @@ def child_steps(doc_path: str, repeats: int) -> dict:
     import logging
 
     from staggered_cli.cli.common import read_document
-    from staggered_cli.heap import reuse_freed_memory
+    from staggered_cli.cli.heap import reuse_freed_memory
     from staggered_cli.ops import timing
 
     reuse_freed_memory()  # as the commands do

@@ -2,7 +2,7 @@
 
 Cuts every rotation track of two real clips into segments (knots every
 0.25 s, samples = the frames strictly inside each segment), fits all
-segments at once with ``staggered_cli.splines.fit_rotation_tangents`` and
+segments at once with ``staggered_cli.model.rotation_fit.fit_rotation_tangents`` and
 compares with the paper's Appendix A fit (per segment Nelder-Mead with a
 unit-length penalty, the reference implementation in tests/test_splines.py).
 The reference is timed on a random subset of segments and extrapolated.
@@ -22,8 +22,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from staggered_cli import splines  # noqa: E402
 from staggered_cli.io.bvh import read_bvh  # noqa: E402
+from staggered_cli.model import rotation_fit, rotation_spline  # noqa: E402
 from tests.conftest import MOCAP  # noqa: E402
 from tests.test_splines import fit_errors, reference_fit_segments, track_segments  # noqa: E402
 
@@ -38,7 +38,7 @@ def _batched(data: dict, repeats: int = 3) -> tuple[np.ndarray, np.ndarray, floa
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
-        a, b = splines.fit_rotation_tangents(
+        a, b = rotation_fit.fit_rotation_tangents(
             data["q0"], data["q3"], data["seg"], data["u"], data["values"], data["n_segments"]
         )
         times.append(time.perf_counter() - t)
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         total_lm += t_lm
         total_ref += t_ref
 
-        a0, b0 = splines.default_rotation_tangents(data["q0"], data["q3"])
+        a0, b0 = rotation_spline.default_rotation_tangents(data["q0"], data["q3"])
         err0 = np.degrees(fit_errors(data, a0, b0))
 
         def row(clip, n, method, e, seconds=None, per=None):

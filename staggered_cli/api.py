@@ -21,7 +21,7 @@ from .errors import UsageError, arg
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from .document import Document
+    from .model.document import Document
     from .motion import BvhMotion, MarkerMotion
 
     Motion = BvhMotion | MarkerMotion
@@ -83,7 +83,7 @@ def _triples(value: Mapping[str, Triple] | None, name: str) -> dict[str, Triple]
 
 
 def _document(doc: Any, name: str = "doc") -> Document:
-    from .document import Document
+    from .model.document import Document
 
     if not isinstance(doc, Document):
         what = type(doc).__name__
@@ -406,7 +406,7 @@ def edit_pose(
     >>> bool(changed.any()), bool(changed[0].any())
     (True, False)
     """
-    from .document import check_pose_index
+    from .model.document import check_pose_index
     from .ops import edit_pose as ops
     from .ops.layers import check_ease
     from .ops.layers import ease as ease_op
@@ -907,7 +907,7 @@ def info(value: Document | Motion) -> dict[str, Any]:
     >>> summary["kind"], summary["frames"], summary["joints"]
     ('bvh', 121, 17)
     """
-    from .ops.info import summarize
+    from .io.summary import summarize
 
     return summarize(value)
 

@@ -443,8 +443,8 @@ def _worker_main(conn, parent_pid: int, level: int, commands: Commands) -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, unwind)
-    from .heap import reuse_freed_memory
-    from .log import configure_logging, log
+    from .cli.heap import reuse_freed_memory
+    from .cli.log import configure_logging, log
 
     reuse_freed_memory()
     configure_logging(0, 0)

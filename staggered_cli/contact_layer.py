@@ -30,11 +30,11 @@ import numpy as np
 
 from . import quat
 from .contacts import up_direction
-from .document import Document
 from .errors import UsageError, arg, warn
 from .ik import ik_layer, two_bone_chain
+from .model.document import Document
+from .model.sampling import at_times
 from .motion import local_rotations_from_channels, local_translations_from_channels
-from .sampling import at_times
 from .skeleton import body_joints, forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height

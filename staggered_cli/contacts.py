@@ -53,8 +53,8 @@ from dataclasses import replace
 import numpy as np
 
 from . import quat
-from .document import Constraint
 from .errors import UsageError, arg, warn
+from .model.document import Constraint
 from .motion import BvhMotion, MarkerMotion
 from .names import resolve
 from .skeleton import body_joints

@@ -196,7 +196,7 @@ def ik_layer(
     translations : (N, J, 3) local translations, file units.
     times : (N,) seconds of the frames.
     constraints : sequence of objects with ``joint`` (name), ``start`` and
-        ``end`` (seconds), e.g. :class:`staggered_cli.document.Constraint`.
+        ``end`` (seconds), e.g. :class:`staggered_cli.model.document.Constraint`.
     blend : seconds of the smooth ramp on each side of a constraint.
     targets : optional, one entry per constraint: the world position (3,) in
         file units where its joint is planted, a position per frame (N, 3)

@@ -64,7 +64,7 @@ from .errors import UsageError, arg
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from .document import Document
+    from .model.document import Document
     from .motion import BvhMotion, MarkerMotion
 
 #: The kinds of ``staggered plot``.
@@ -263,8 +263,8 @@ def _up(points: np.ndarray, size: float) -> np.ndarray:
 
 def _moving(doc: Document, variables: list[_Var]) -> np.ndarray:
     """(V,) bool: the variable moves in the source or has a refinement."""
-    from .representation import ROTATION
-    from .variables import dense_variables
+    from .model.kinds import ROTATION
+    from .model.variables import dense_variables
 
     size = float(doc.source.figure_height())
     moving = []
@@ -282,7 +282,7 @@ def _moving(doc: Document, variables: list[_Var]) -> np.ndarray:
 def _order_key(doc: Document, variables: list[_Var]) -> np.ndarray:
     """Sort key of each variable: hierarchy order (BVH), or highest marker
     first (C3D)."""
-    from .representation import TRANSLATION
+    from .model.kinds import TRANSLATION
 
     if doc.kind == "bvh":
         return np.array([2 * v.target + (0 if v.kind == TRANSLATION else 1) for v in variables], dtype=float)
@@ -304,7 +304,7 @@ def _rows(doc: Document, joints: Sequence[str] | None, *, rotation_only: bool = 
     ``rotation_only`` when it has one).  Without ``joints``: every variable
     that moves.  Raises UsageError naming an unknown name.
     """
-    from .representation import ROTATION
+    from .model.kinds import ROTATION
 
     variables = _variables(doc)
     if joints:
@@ -652,8 +652,8 @@ def timing_figure(
 def _default_curves(doc: Document) -> list[_Var]:
     """The few variables that move most (rotations for BVH), preferring
     those with refinements, in hierarchy order."""
-    from .representation import ROTATION
-    from .variables import dense_variables
+    from .model.kinds import ROTATION
+    from .model.variables import dense_variables
 
     variables = _variables(doc)
     w = _signal(doc, "weights", (len(variables),))
@@ -679,8 +679,8 @@ def _channels(doc: Document, v: _Var, motion) -> tuple[np.ndarray, list[str]]:
     """Values (T, C) of variable ``v`` in ``motion`` and channel labels: a
     BVH rotation as the joint's Euler channels (degrees, as written), a
     translation as its coordinates (file units)."""
+    from .model.kinds import ROTATION
     from .motion import BvhMotion, position_columns, rotation_columns
-    from .representation import ROTATION
 
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
@@ -729,8 +729,8 @@ def curves_figure(
     """
     from matplotlib.lines import Line2D
 
+    from .model.kinds import ROTATION
     from .ops.bake import bake
-    from .representation import ROTATION
 
     lo, hi, span = _crowded_window(doc, time)
     scale = _crowding(doc, lo, hi)
@@ -830,7 +830,7 @@ class _Stick:
 
 
 def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
-    from .document import Document
+    from .model.document import Document
     from .motion import BvhMotion
     from .ops.bake import bake
 
@@ -1117,7 +1117,7 @@ def _frame_axes(ax, view: _View, cx: float, x: np.ndarray | None = None) -> None
 
 
 def _subjects(subject, compare, name: str | None, compare_name: str | None) -> list[_Stick]:
-    from .document import Document
+    from .model.document import Document
 
     def label(s, n, fallback):
         if n:
@@ -1137,7 +1137,7 @@ def skeleton_difference(a, b) -> str | None:
     clips), in a few words, or None when they have the same joints (or
     markers) and sizes within 10 %: ``preview --compare`` warns, since
     the two drawings then do not line up joint for joint."""
-    from .document import Document
+    from .model.document import Document
     from .motion import BvhMotion
 
     clips = [x.source if isinstance(x, Document) else x for x in (a, b)]

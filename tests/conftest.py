@@ -149,7 +149,8 @@ def cli_extract(name: str) -> bytes:
     import hashlib
     from dataclasses import replace
 
-    from staggered_cli.io.document import document_bytes, to_parts
+    from staggered_cli.io.container import document_bytes
+    from staggered_cli.io.schema import to_parts
 
     sha = hashlib.sha256(mocap(name).read_bytes()).hexdigest()
     return document_bytes(*to_parts(replace(dev_document(name), source_sha256=sha)), "npz")
@@ -172,7 +173,8 @@ def cli_document(name: str, *steps: list[str]) -> bytes:
 
 def document_file(doc, path: Path) -> Path:
     """``doc`` written to ``path`` as an NPZ document."""
-    from staggered_cli.io.document import document_bytes, to_parts
+    from staggered_cli.io.container import document_bytes
+    from staggered_cli.io.schema import to_parts
 
     path.write_bytes(document_bytes(*to_parts(doc), "npz"))
     return path

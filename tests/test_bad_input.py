@@ -32,7 +32,8 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from staggered_cli.cli.main import COMMANDS, cli
-from staggered_cli.io.document import MANIFEST_MEMBER, from_parts, parse_document
+from staggered_cli.io.container import MANIFEST_MEMBER, parse_document
+from staggered_cli.io.schema import from_parts
 
 from .conftest import SAMPLES, mocap
 from .fuzz import mutate as mu
@@ -515,7 +516,7 @@ def test_info_names_a_bad_document_by_the_path_given(documents, tmp_path):
 
 
 def _reencode(documents, name, change):
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io.container import document_bytes
 
     manifest, arrays = parse_document(documents[name].read_bytes(), "doc")
     change(manifest, arrays)

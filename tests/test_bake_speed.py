@@ -14,9 +14,9 @@ import pytest
 from staggered_cli import contact_layer
 from staggered_cli.io import bvh
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
+from staggered_cli.model.evaluate import evaluate, evaluate_at
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.extract import extract
-from staggered_cli.representation import evaluate, evaluate_at
 
 from .conftest import BVH_FILES, mocap
 
@@ -99,7 +99,7 @@ def test_evaluate_in_blocks_equals_evaluate_at(doc):
 
 
 def test_source_changed_on_chains_equals_all_joints(doc):
-    from staggered_cli.sampling import local_pose
+    from staggered_cli.model.sampling import local_pose
 
     src = doc.source
     rot, tr = local_pose(doc, doc.frame_times[:500])
@@ -122,7 +122,8 @@ def test_source_changed_on_chains_equals_all_joints(doc):
 def test_round_trip_bake_is_the_source(doc, fmt):
     """Through a document file too: its source.channels are the numbers the
     writer compares with."""
-    from staggered_cli.io.document import document_pieces, from_parts, parse_document, to_parts
+    from staggered_cli.io.container import document_pieces, parse_document
+    from staggered_cli.io.schema import from_parts, to_parts
 
     assert bvh_bytes(bake(doc)) == mocap(CLIP).read_bytes()
     data = b"".join(bytes(p) for p in document_pieces(*to_parts(doc), fmt))
@@ -134,8 +135,9 @@ def test_round_trip_bake_is_the_source(doc, fmt):
 def test_layer_at_equals_the_spline_over_every_segment(doc):
     """layer_at gathers the segments its queries meet: the same bits as the
     spline evaluated with every segment of the layer."""
-    from staggered_cli import kinds
-    from staggered_cli.representation import _locate, layer_at
+    from staggered_cli.model import kinds
+    from staggered_cli.model.evaluate import layer_at
+    from staggered_cli.model.knots import locate
 
     t = doc.frame_times[50:900]
     for track in doc.tracks:
@@ -148,7 +150,7 @@ def test_layer_at_equals_the_spline_over_every_segment(doc):
         u = np.zeros(len(tt))
         for i in range(V):
             idx = np.flatnonzero(var == i)
-            seg, u[idx] = _locate(knots.t[knots.of(i)], tt[idx])
+            seg, u[idx] = locate(knots.t[knots.of(i)], tt[idx])
             gseg[idx] = seg + knots.seg_ptr[i]
         first = knots.seg_first
         ref = kinds.ops_for(track.kind).spline_at(knots.v[first], layer.tan_a, layer.tan_b, knots.v[first + 1], gseg, u)
@@ -201,7 +203,8 @@ def test_stored_members_read_as_numpy_reads_them(doc, tmp_path):
     from bytes and from a file, and a flipped byte fails the CRC."""
     import io
 
-    from staggered_cli.io.document import _read_npz, document_pieces, to_parts
+    from staggered_cli.io.container import _read_npz, document_pieces
+    from staggered_cli.io.schema import to_parts
 
     data = b"".join(bytes(p) for p in document_pieces(*to_parts(doc), "npz"))
     ref = np.load(io.BytesIO(data))

@@ -185,7 +185,7 @@ def test_steps_hand_documents_over_and_bake_what_the_pipe_bakes(tmp_path):
     commands piped through document files bake, to the byte, BVH and C3D."""
     from staggered_cli import batch
     from staggered_cli.cli.main import COMMANDS
-    from staggered_cli.document import Document
+    from staggered_cli.model.document import Document
 
     for name, steps in (("cmu_02_01_walk.bvh", STEPS), ("c3dorg_sample01_Eb015pi_walk.c3d", "cull --keep 30%")):
         src = mocap(name)

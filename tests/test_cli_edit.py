@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import quat, variables
+from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import parse_bvh, read_bvh
-from staggered_cli.io.document import document_bytes, from_parts, parse_document, to_parts
+from staggered_cli.io.container import document_bytes, parse_document
+from staggered_cli.io.schema import from_parts, to_parts
+from staggered_cli.model import variables
+from staggered_cli.model.kinds import ROTATION, TRANSLATION
 from staggered_cli.ops import edit_pose as E
-from staggered_cli.representation import ROTATION, TRANSLATION
 
 from .conftest import SAMPLES, cli_document, mocap, one_line_error
 

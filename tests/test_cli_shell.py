@@ -20,8 +20,8 @@ from staggered_cli.cli import options
 from staggered_cli.cli.main import COMMANDS, EXIT_BROKEN_PIPE, EXIT_INTERRUPTED, StaggeredGroup, cli
 from staggered_cli.errors import DataError, StaggeredError, UsageError
 from staggered_cli.io import files
-from staggered_cli.io.document import document_bytes, parse_document
-from staggered_cli.ops import info as info_ops
+from staggered_cli.io.container import document_bytes, parse_document
+from staggered_cli.io import summary as info_ops
 
 ROOT = Path(__file__).resolve().parents[1]
 MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"
@@ -469,8 +469,8 @@ def test_detect_kind():
 
 
 def test_info_on_a_document_npz_and_json(tmp_path):
-    from staggered_cli.io.document import to_parts
-    from staggered_cli.variables import from_motion
+    from staggered_cli.io.schema import to_parts
+    from staggered_cli.model.variables import from_motion
 
     sample = ROOT / "data" / "samples" / "march.bvh"
     if not sample.exists():

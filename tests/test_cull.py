@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops.bake import bake
 
@@ -62,7 +62,7 @@ def test_ranking_and_refitting_evaluate_the_motion_once(monkeypatch):
     for byte."""
     from dataclasses import replace
 
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io.container import document_bytes
 
     doc = replace(dev_document("cmu_02_01_walk.bvh"))
     calls = []

@@ -11,15 +11,17 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import quat, sampling
+from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh
-from staggered_cli.io.document import from_parts, parse_document
+from staggered_cli.io.container import parse_document
+from staggered_cli.io.schema import from_parts
+from staggered_cli.model import sampling
+from staggered_cli.model.kinds import TRANSLATION
 from staggered_cli.motion import BvhMotion
 from staggered_cli.ops import edit_pose as E
 from staggered_cli.ops.bake import bake
-from staggered_cli.representation import TRANSLATION
 
 from .conftest import dev_bake, dev_document, dev_motion, document_file, mocap, one_line_error
 

@@ -14,12 +14,13 @@ from click.testing import CliRunner
 from scipy.ndimage import gaussian_filter1d
 
 from staggered_cli import contacts as C
-from staggered_cli import sampling
-from staggered_cli import signals as S
 from staggered_cli.errors import UsageError
-from staggered_cli.io.document import document_bytes, to_parts
+from staggered_cli.io.container import document_bytes
+from staggered_cli.io.schema import to_parts
+from staggered_cli.model import sampling
 from staggered_cli.motion import BvhMotion, channels_from_local
 from staggered_cli.ops.extract import extract, refinement_frames
+from staggered_cli.signals import probability, smoothing, trails
 
 from .conftest import BVH_FILES, C3D_FILES, cli_extract, dev_document, dev_motion, mocap
 
@@ -330,13 +331,13 @@ def test_30_and_120_hz_give_the_same_poses():
 def test_tpose_frame_does_not_flood_the_signals():
     m = _motion("cmu_01_01_forward_jumps.bvh")
     cut = replace(m, channels=m.channels[1:])
-    full, rest = S.local_evidence(m), S.local_evidence(cut)
+    full, rest = trails.local_evidence(m), trails.local_evidence(cut)
     assert full.breaks[0] and not full.breaks[1:].any()
     assert not rest.breaks.any()
     # the evidence after the jump is what the clip without the T-pose gives
     np.testing.assert_allclose(full.p[1:], rest.p, atol=1e-6)
     np.testing.assert_allclose(full.weights, rest.weights, rtol=1e-3)
-    P_full, P_rest = S.pose_probability(full), S.pose_probability(rest)
+    P_full, P_rest = probability.pose_probability(full), probability.pose_probability(rest)
     half = int(np.ceil(0.075 * 120))  # the tent filter reaches frame 0 only from the first frames
     np.testing.assert_allclose(P_full[1 + half :], P_rest[half:], atol=1e-9)
     assert np.abs(P_full[1 : 1 + half] - P_rest[:half]).max() < 0.05
@@ -349,24 +350,24 @@ def test_scaled_curvature_is_the_sine_of_half_the_turn():
     turn = np.radians(10.0)
     a = np.arange(40) * turn
     circle = np.stack([np.cos(a), np.sin(a), 0 * a], axis=1)[:, None, :]
-    k = S.scaled_curvature(circle)[:, 0]
+    k = trails.scaled_curvature(circle)[:, 0]
     np.testing.assert_allclose(k[1:-1], np.sin(turn / 2), rtol=1e-9)
     assert k[0] == 0 and k[-1] == 0
-    k2 = S.scaled_curvature(circle, span=2)[:, 0]
+    k2 = trails.scaled_curvature(circle, span=2)[:, 0]
     np.testing.assert_allclose(k2[2:-2], np.sin(turn), rtol=1e-9)
     line = np.stack([a, 2 * a, 0 * a], axis=1)[:, None, :]
-    assert np.abs(S.scaled_curvature(line)).max() < 1e-7
+    assert np.abs(trails.scaled_curvature(line)).max() < 1e-7
     still = np.zeros((10, 1, 3))
-    assert np.all(S.scaled_curvature(still) == 0)
+    assert np.all(trails.scaled_curvature(still) == 0)
     rng = np.random.default_rng(1)
     noise = rng.normal(size=(500, 3, 3))
-    k = S.scaled_curvature(noise)
+    k = trails.scaled_curvature(noise)
     assert k.min() >= 0 and k.max() <= 1
 
 
 def test_smoothing_is_a_duration():
-    n30, r30 = S.smoothing_iterations(0.05, 30)
-    n120, r120 = S.smoothing_iterations(0.05, 120)
+    n30, r30 = smoothing.smoothing_iterations(0.05, 30)
+    n120, r120 = smoothing.smoothing_iterations(0.05, 120)
     # a diffusion: sixteen times the iterations at four times the rate
     # (each full iteration adds a variance of 1/2 frame², the partial one 2 r)
     assert abs((n120 / 2 + 2 * r120) / (n30 / 2 + 2 * r30) - 16) < 1e-9
@@ -375,7 +376,7 @@ def test_smoothing_is_a_duration():
     for rate in (30, 120, 250):
         x = np.zeros(2001)
         x[1000] = 1.0
-        y = S.laplacian_smooth(x, 0.05, rate)
+        y = smoothing.laplacian_smooth(x, 0.05, rate)
         t = (np.arange(2001) - 1000) / rate
         assert abs(np.sqrt(np.sum(y * t**2)) - 0.05) < 1e-6
         assert abs(y.sum() - 1) < 1e-12
@@ -383,22 +384,22 @@ def test_smoothing_is_a_duration():
     x = np.r_[np.ones(10), np.zeros(10)]
     breaks = np.zeros(19, dtype=bool)
     breaks[9] = True
-    np.testing.assert_array_equal(S.laplacian_smooth(x, 0.1, 120, breaks), x)
+    np.testing.assert_array_equal(smoothing.laplacian_smooth(x, 0.1, 120, breaks), x)
 
 
 def test_tent_filter_and_pulses_are_rate_independent():
     x = np.ones(50)
-    np.testing.assert_allclose(S.tent_filter(x, 0.15, 120), 1.0)
+    np.testing.assert_allclose(smoothing.tent_filter(x, 0.15, 120), 1.0)
     for rate in (30, 60, 120, 250):
-        pulse = S.contact_pulses([rate], 2 * rate, rate, 0.05)
+        pulse = probability.contact_pulses([rate], 2 * rate, rate, 0.05)
         assert abs(pulse.sum() / rate - 0.05) <= 1.0 / rate + 1e-9
         assert pulse[rate] == 1.0
 
 
 def test_local_maxima_plateaus_and_zeros():
     x = np.array([0, 1, 1, 1, 0, 0, 0, 2, 0, 0.0])
-    np.testing.assert_array_equal(S.local_maxima(x), [2, 7])
-    assert len(S.local_maxima(np.zeros(10))) == 0
+    np.testing.assert_array_equal(probability.local_maxima(x), [2, 7])
+    assert len(probability.local_maxima(np.zeros(10))) == 0
 
 
 # --- the command ----------------------------------------------------------------------------
@@ -443,7 +444,7 @@ def test_cli_defaults_are_the_library_defaults():
     from staggered_cli.ops import extract as ops
 
     defaults = {p.name: p.default for p in command.params}
-    assert defaults["filter_width"] == S.DEFAULT_FILTER_WIDTH
+    assert defaults["filter_width"] == smoothing.DEFAULT_FILTER_WIDTH
     assert defaults["refine_window"] == ops.DEFAULT_REFINE_WINDOW
     assert defaults["min_contact"] == C.DEFAULT_MIN_CONTACT
     assert defaults["contact_tolerance"] == C.DEFAULT_TOLERANCE
@@ -473,8 +474,8 @@ def test_a_long_clips_fit_a_joint_at_a_time_gives_the_same_document(monkeypatch,
     """Past BY_COLUMN_BYTES of rotations (an hour at 120 Hz), extract drops
     the clip's rotations before the fit and the fit makes each joint's as it
     takes it: forced on a dev clip, the same document bytes."""
-    from staggered_cli import variables
     from staggered_cli.io.bvh import read_bvh
+    from staggered_cli.model import variables
 
     want = document_bytes(*to_parts(_extracted(name)), "npz")
     monkeypatch.setattr(variables, "BY_COLUMN_BYTES", 0)

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from staggered_cli import quat
-from staggered_cli import representation as rep
 from staggered_cli.io.bvh import bvh_bytes
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
+from staggered_cli.model.evaluate import fitted_spline, layer_at
+from staggered_cli.model.kinds import ROTATION
 from staggered_cli.ops import layers, timing
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.cull import choose, keep_poses
@@ -37,10 +38,10 @@ def test_the_fitted_spline_is_the_spline_and_the_bake_is_the_bake_read_back(name
     doc = dev_document(name)
     for track in doc.tracks:
         layer = track.base
-        assert rep._fitted_spline(layer) is not None, (name, track.kind)
+        assert fitted_spline(layer) is not None, (name, track.kind)
         var, t = _all_queries(doc, track)
-        with_fit = rep.layer_at(track.kind, layer, var, t)
-        without = rep.layer_at(track.kind, replace(layer, fitted=None), var, t)
+        with_fit = layer_at(track.kind, layer, var, t)
+        without = layer_at(track.kind, replace(layer, fitted=None), var, t)
         assert np.array_equal(with_fit, without), (name, track.kind)
     baked, read_back = bake(doc), bake(_uncached(doc))
     if name.endswith(".bvh"):
@@ -51,7 +52,7 @@ def test_the_fitted_spline_is_the_spline_and_the_bake_is_the_bake_read_back(name
 
 def test_a_layer_with_other_knots_tangents_or_samples_evaluates_its_own_spline():
     doc = dev_document("cmu_02_01_walk.bvh")
-    track = next(tr for tr in doc.tracks if tr.kind == rep.ROTATION)
+    track = next(tr for tr in doc.tracks if tr.kind == ROTATION)
     layer = track.base
     kn = layer.knots
     var, t = _all_queries(doc, track)
@@ -62,13 +63,13 @@ def test_a_layer_with_other_knots_tangents_or_samples_evaluates_its_own_spline()
         replace(layer, tan_b=layer.tan_b * 0.5),
         replace(layer, samp_s=layer.samp_s.copy()),
     ):
-        assert other.fitted is layer.fitted and rep._fitted_spline(other) is None
-        got = rep.layer_at(track.kind, other, var, t)
-        assert np.array_equal(got, rep.layer_at(track.kind, replace(other, fitted=None), var, t))
-        assert not np.array_equal(got, rep.layer_at(track.kind, layer, var, t)) or other.samp_s is not layer.samp_s
+        assert other.fitted is layer.fitted and fitted_spline(other) is None
+        got = layer_at(track.kind, other, var, t)
+        assert np.array_equal(got, layer_at(track.kind, replace(other, fitted=None), var, t))
+        assert not np.array_equal(got, layer_at(track.kind, layer, var, t)) or other.samp_s is not layer.samp_s
     # other displacements over the same spline: the fit's spline still holds
     scaled = replace(layer, samp_d=layer.samp_d.copy())
-    assert rep._fitted_spline(scaled) is layer.fitted.values
+    assert fitted_spline(scaled) is layer.fitted.values
 
 
 def _edits(doc):

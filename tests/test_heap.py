@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from staggered_cli import heap
+from staggered_cli.cli import heap
 
 GLIBC = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
 
@@ -18,7 +18,7 @@ _LOOP = """
 import resource, sys
 import numpy as np
 if sys.argv[1] == "tuned":
-    from staggered_cli.heap import reuse_freed_memory
+    from staggered_cli.cli.heap import reuse_freed_memory
     assert reuse_freed_memory()
 a = np.ones(1 << 20)
 del a

@@ -38,7 +38,7 @@ from click.testing import CliRunner
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
 from staggered_cli.io import c3d as io_c3d
-from staggered_cli.io.document import document_bytes, parse_document
+from staggered_cli.io.container import document_bytes, parse_document
 from staggered_cli.io.isolate import ChildFailed, run_isolated
 
 from .conftest import SAMPLES, mocap, one_line_error

@@ -23,12 +23,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from staggered_cli import signals
 from staggered_cli.cli.main import cli
 from staggered_cli.io import files
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.ops.extract import MAX_EXTRACT_VALUES
 from staggered_cli.ops.extract import extract as run_extract
+from staggered_cli.signals import smoothing, trails
 
 from .conftest import mocap, one_line_error
 
@@ -197,10 +197,10 @@ def test_smoothing_time_does_not_grow_with_sigma_times_rate():
     # 140 s here); in the cosine basis, as fast as 0.025 s
     motion = read_bvh(str(mocap(WALK)))
     start = time.perf_counter()
-    ev = signals.local_evidence(motion, 10.0)
+    ev = trails.local_evidence(motion, 10.0)
     assert time.perf_counter() - start < 10
     # a Gaussian of 10 s over a 2.9 s clip: every signal is almost flat at its mean
-    kappa = signals.local_evidence(motion, 0.0).p
+    kappa = trails.local_evidence(motion, 0.0).p
     np.testing.assert_allclose(ev.p, np.broadcast_to(kappa.mean(axis=0), ev.p.shape), atol=2e-3)
 
 
@@ -210,7 +210,7 @@ def old_laplacian_smooth(x, duration, rate, breaks=None):
     T = x.shape[0]
     if T < 2:
         return x
-    full, last = signals.smoothing_iterations(duration, rate)
+    full, last = smoothing.smoothing_iterations(duration, rate)
     cond = np.ones(T - 1) if breaks is None else (~np.asarray(breaks, dtype=bool)).astype(float)
     cond = cond.reshape((T - 1,) + (1,) * (x.ndim - 1))
     for lam in [0.25] * full + ([last] if last > 0 else []):
@@ -221,15 +221,15 @@ def old_laplacian_smooth(x, duration, rate, breaks=None):
 
 
 @pytest.mark.parametrize("name", [JUMPS, RUN, "games105_idle.bvh"])
-@pytest.mark.parametrize("cap", [signals.MAX_EXPLICIT_ITERATIONS, 0])
+@pytest.mark.parametrize("cap", [smoothing.MAX_EXPLICIT_ITERATIONS, 0])
 def test_signals_match_the_old_smoothing(monkeypatch, name, cap):
     """p and P at the default settings, with the old smoothing and the new
     (cap 0: the cosine-basis path even where iterations would be run)."""
     motion = read_bvh(str(mocap(name)))
     with monkeypatch.context() as m:
-        m.setattr(signals, "laplacian_smooth", old_laplacian_smooth)
+        m.setattr(smoothing, "laplacian_smooth", old_laplacian_smooth)
         old = run_extract(motion, source_name=name).signals
-    monkeypatch.setattr(signals, "MAX_EXPLICIT_ITERATIONS", cap)
+    monkeypatch.setattr(smoothing, "MAX_EXPLICIT_ITERATIONS", cap)
     new = run_extract(motion, source_name=name).signals
     for key in ("p", "P"):
         assert new[key].shape == old[key].shape
@@ -242,11 +242,11 @@ def test_signals_match_the_old_smoothing(monkeypatch, name, cap):
 def test_the_cosine_basis_keeps_the_breaks(sigma):
     # JUMPS' T-pose frame 0 is a break: nothing crosses it, in either path
     motion = read_bvh(str(mocap(JUMPS)))
-    ev = signals.local_evidence(motion, 0.0)
+    ev = trails.local_evidence(motion, 0.0)
     assert ev.breaks[0] and ev.breaks.sum() == 1
     kappa = ev.p.copy()
     kappa[0] = 1.0  # the T-pose frame alone
-    new = signals.laplacian_smooth(kappa, sigma, motion.rate, ev.breaks)
+    new = smoothing.laplacian_smooth(kappa, sigma, motion.rate, ev.breaks)
     old = old_laplacian_smooth(kappa, sigma, motion.rate, ev.breaks)
     np.testing.assert_array_equal(new[0], 1.0)
     np.testing.assert_allclose(new[1:], old[1:], rtol=0, atol=1e-9)

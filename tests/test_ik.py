@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from staggered_cli import quat
-from staggered_cli.document import Constraint
 from staggered_cli.errors import UsageError
 from staggered_cli.ik import blend_weight, ik_layer, two_bone_chain
 from staggered_cli.io.bvh import read_bvh
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
+from staggered_cli.model.document import Constraint
 from staggered_cli.ops.bake import bake
 from staggered_cli.skeleton import forward_kinematics
 
@@ -391,8 +391,8 @@ def test_bad_input_is_refused():
 
 @pytest.fixture(scope="module")
 def run_doc(tmp_path_factory):
-    from staggered_cli import variables as V
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io.container import document_bytes
+    from staggered_cli.model import variables as V
 
     c = load("bandai2_run_normal_001.bvh")
     m = read_bvh(mocap("bandai2_run_normal_001.bvh"))
@@ -411,7 +411,8 @@ def cli_run(*args):
 
 
 def read_doc(path):
-    from staggered_cli.io.document import from_parts, parse_document
+    from staggered_cli.io.container import parse_document
+    from staggered_cli.io.schema import from_parts
 
     return from_parts(*parse_document(path.read_bytes(), "test"))
 
@@ -470,7 +471,7 @@ def test_a_constraint_added_by_hand_pins_its_joint(cmu_walk, tmp_path):
     from click.testing import CliRunner
 
     from staggered_cli.cli.main import cli
-    from staggered_cli.io.document import document_bytes, parse_document
+    from staggered_cli.io.container import document_bytes, parse_document
 
     m, doc = cmu_walk
     c = next(x for x in doc.constraints if x.joint == "LeftFoot" and x.end - x.start > 0.3)

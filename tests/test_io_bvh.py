@@ -246,7 +246,7 @@ def test_a_resampled_bake_keeps_the_header_as_written():
 
 
 def test_a_document_whose_source_text_is_not_the_source_is_refused():
-    from staggered_cli.io.document import document_bytes, parse_document
+    from staggered_cli.io.container import document_bytes, parse_document
 
     manifest, arrays = parse_document(cli_document("bandai2_run_normal_001.bvh"), "doc")
     text = arrays["source.bvh"].copy()

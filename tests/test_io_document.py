@@ -25,8 +25,8 @@ from hypothesis.extra import numpy as hnp
 
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import DataError
-from staggered_cli.io import document
-from staggered_cli.io.document import (
+from staggered_cli.io import container
+from staggered_cli.io.container import (
     FORMAT_NAME,
     FORMAT_VERSION,
     MANIFEST_MEMBER,
@@ -42,7 +42,7 @@ NAME = "walk.stag"
 
 def _npy_bytes(arr: np.ndarray) -> bytes:
     """The ``.npy`` member the writer stores for ``arr``."""
-    return b"".join(bytes(p) for p in document._npy_parts(arr))
+    return b"".join(bytes(p) for p in container._npy_parts(arr))
 
 
 def sample():
@@ -347,7 +347,7 @@ def test_deflate_bomb_over_the_limits_is_not_inflated(monkeypatch):
                 member.write(chunk)
     bomb = buf.getvalue()
     assert len(bomb) < 1 << 20
-    monkeypatch.setattr(document, "MAX_ARRAY_BYTES", 64 << 20)
+    monkeypatch.setattr(container, "MAX_ARRAY_BYTES", 64 << 20)
     elapsed, peak = _measure(lambda: refused(bomb, "over the limit"))
     assert elapsed < 1.0
     assert peak < 2 << 20
@@ -367,7 +367,7 @@ def test_member_lying_small_is_cut_at_its_declared_size():
 
 
 def test_total_of_members_is_capped(monkeypatch):
-    monkeypatch.setattr(document, "MAX_TOTAL_BYTES", 10_000)
+    monkeypatch.setattr(container, "MAX_TOTAL_BYTES", 10_000)
     refused(document_bytes({}, {"a": np.zeros(800), "b": np.zeros(800)}, "npz"), "total more than the limit")
     refused(document_bytes({}, {"a": np.zeros(800), "b": np.zeros(800)}, "json"), "total more than the limit")
 
@@ -626,7 +626,7 @@ def test_pieces_join_to_the_document_bytes_and_a_file_reads_like_its_bytes(tmp_p
     bytes copy) is the same as from its bytes."""
     manifest, arrays = sample()
     data = document_bytes(manifest, arrays, "npz")
-    pieces = document.document_pieces(manifest, arrays, "npz")
+    pieces = container.document_pieces(manifest, arrays, "npz")
     assert b"".join(bytes(p) for p in pieces) == data
     path = tmp_path / NAME
     path.write_bytes(data)
@@ -661,7 +661,7 @@ def _mapping_rss_kb(path: Path) -> int | None:
 @pytest.fixture
 def mapped_everything(monkeypatch):
     """Map the source's arrays whatever their size (the sample's are small)."""
-    monkeypatch.setattr(document, "_MAP_MIN_BYTES", 1)
+    monkeypatch.setattr(container, "_MAP_MIN_BYTES", 1)
 
 
 def test_source_arrays_of_a_file_are_mapped_read_only_and_equal_to_its_bytes(march_npz, tmp_path, mapped_everything):
@@ -676,7 +676,7 @@ def test_source_arrays_of_a_file_are_mapped_read_only_and_equal_to_its_bytes(mar
         assert value.dtype == from_bytes[key].dtype and value.flags.c_contiguous, key
         # the source's arrays are the file's pages (read-only: a step that
         # wrote into the source would be a bug), the others the reader's own
-        assert value.flags.writeable == (key not in document._MAPPED), key
+        assert value.flags.writeable == (key not in container._MAPPED), key
 
 
 def test_a_mapped_member_still_fails_its_crc(march_npz, tmp_path, mapped_everything):
@@ -731,7 +731,7 @@ def test_a_file_that_cannot_be_mapped_is_read(march_npz, tmp_path, mapped_everyt
         def __init__(self, *args, **kwargs):
             raise OSError("no mappings here")
 
-    monkeypatch.setattr(document.mmap, "mmap", Unmappable)
+    monkeypatch.setattr(container.mmap, "mmap", Unmappable)
     path = tmp_path / "m.stag"
     path.write_bytes(march_npz)
     _, from_bytes = parse_document(march_npz, NAME)

@@ -1,4 +1,4 @@
-"""The paper's operators per kind of variable (staggered_cli.kinds): ⊕, ⊖,
+"""The paper's operators per kind of variable (staggered_cli.model.kinds): ⊕, ⊖,
 scale, interpolate and identity of translations and rotations, on seeded
 random values and on a real capture's values."""
 
@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from staggered_cli import quat
-from staggered_cli.kinds import KINDS, ROTATION, ROTATION_OPS, TRANSLATION, TRANSLATION_OPS, ops_for
+from staggered_cli.model.kinds import KINDS, ROTATION, ROTATION_OPS, TRANSLATION, TRANSLATION_OPS, ops_for
 
 from .conftest import dev_motion
 

@@ -19,13 +19,15 @@ from click.testing import CliRunner
 
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
-from staggered_cli.io.document import DOCUMENT_VERSION, document_bytes, from_parts, parse_document, to_parts
+from staggered_cli.io.container import document_bytes, parse_document
+from staggered_cli.io.schema import DOCUMENT_VERSION, from_parts, to_parts
+from staggered_cli.model.evaluate import evaluate
+from staggered_cli.model.restructure import restructure
 from staggered_cli.ops import layers
 from staggered_cli.ops.bake import bake
 from staggered_cli.ops.cull import choose, keep_poses
 from staggered_cli.ops.edit_pose import edit_pose, joint_mask
 from staggered_cli.ops.timing import succession
-from staggered_cli.representation import evaluate, restructure
 
 from .conftest import dev_document, one_line_error
 

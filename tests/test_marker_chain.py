@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from staggered_cli.errors import DataError
-from staggered_cli.io.document import to_parts
+from staggered_cli.io.schema import to_parts
 from staggered_cli.ops import marker_chain, timing
 from staggered_cli.ops.bake import bake
 
@@ -136,7 +136,7 @@ def test_c3d_randomize_of_every_marker_keeps_the_rigid_tree(name, bound):
 
 
 def test_the_marker_tree_is_kept_in_the_document_and_checked_when_read():
-    from staggered_cli.io.document import from_parts
+    from staggered_cli.io.schema import from_parts
 
     m, doc, _ = c3d_doc(EB015)
     edited = timing.succession(doc, 0.02, 1.0, chain=["PV1", "RTH1", "RSK1"], clamp=True)

@@ -20,10 +20,10 @@ from staggered_cli.contacts import contact_joints
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.c3d import read_c3d
+from staggered_cli.model.variables import from_motion
 from staggered_cli.names import PARTS, body_part, resolve
 from staggered_cli.ops.edit_pose import joint_mask
 from staggered_cli.ops.timing import randomize
-from staggered_cli.variables import from_motion
 
 from .conftest import dev_bvh_files, mocap, one_line_error, short_bvh
 

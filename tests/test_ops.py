@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import quat, sampling, variables
+from staggered_cli import quat
 from staggered_cli.errors import KnotOrderError, UsageError
 from staggered_cli.io.bvh import read_bvh
-from staggered_cli.io.document import to_parts
+from staggered_cli.io.schema import to_parts
+from staggered_cli.model import sampling, variables
 from staggered_cli.motion import local_rotations_from_channels
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops import edit_pose as E

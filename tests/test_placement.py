@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import placement
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.ops import cull
+from staggered_cli.signals import placement
 
 from .conftest import dev_document, mocap
 

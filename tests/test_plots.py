@@ -13,15 +13,16 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from staggered_cli import document as D
 from staggered_cli import plots
-from staggered_cli import variables as V
 from staggered_cli.cli.main import cli
 from staggered_cli.cli.options import load_input
 from staggered_cli.cli.preview import join_at
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import parse_bvh
-from staggered_cli.io.document import document_bytes, to_parts
+from staggered_cli.io.container import document_bytes
+from staggered_cli.io.schema import to_parts
+from staggered_cli.model import document as D
+from staggered_cli.model import variables as V
 from staggered_cli.plots import gif_durations
 
 from .conftest import BVH_FILES, C3D_FILES, SAMPLES, dev_document, mocap, one_line_error

@@ -11,7 +11,8 @@ from click.testing import CliRunner
 from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
-from staggered_cli.io.document import from_parts, parse_document
+from staggered_cli.io.container import parse_document
+from staggered_cli.io.schema import from_parts
 from staggered_cli.motion import BvhMotion, local_rotations_from_channels, rotation_columns
 from staggered_cli.ops import pose_file as P
 from staggered_cli.ops.bake import bake
@@ -341,11 +342,11 @@ def test_blocking_tangents_do_not_overshoot_and_rest_at_extremes():
     assert m[2, 0] == 0 and m[3, 0] == 0  # a peak and a flat key
     assert 0 < m[1, 0] <= 3 * (1.0 / 0.4)  # between rising slopes, limited
     a, b = P.blocking_translation_tangents(t, p[:, None, :].repeat(3, axis=2))
-    from staggered_cli import splines
+    from staggered_cli.model import bezier
 
     u = np.linspace(0, 1, 201)
     for s in range(len(t) - 1):
-        c = splines.bezier_eval(p[s : s + 1].repeat(3, 1), a[s, :, :], b[s, :, :], p[s + 1 : s + 2].repeat(3, 1), u)
+        c = bezier.bezier_eval(p[s : s + 1].repeat(3, 1), a[s, :, :], b[s, :, :], p[s + 1 : s + 2].repeat(3, 1), u)
         lo, hi = sorted((p[s, 0], p[s + 1, 0]))
         assert c.min() >= lo - 1e-12 and c.max() <= hi + 1e-12
 

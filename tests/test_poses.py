@@ -9,11 +9,11 @@ import functools
 import numpy as np
 import pytest
 
+from staggered_cli.model.sampling import local_pose
+from staggered_cli.model.variables import from_motion
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops.extract import contact_clusters, extract
-from staggered_cli.sampling import local_pose
 from staggered_cli.skeleton import forward_kinematics
-from staggered_cli.variables import from_motion
 
 from .conftest import BVH_FILES, dev_bvh_files, dev_document, dev_motion, staggered_warnings
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import quat, sampling, variables
+from staggered_cli import quat
 from staggered_cli.io.bvh import read_bvh
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
+from staggered_cli.model import sampling, variables
+from staggered_cli.model.evaluate import evaluate
+from staggered_cli.model.restructure import restructure, with_knot_times
 from staggered_cli.motion import channels_from_local
-from staggered_cli.representation import evaluate, restructure, with_knot_times
 from staggered_cli.skeleton import forward_kinematics
 
 from .conftest import BVH_FILES, C3D_FILES, dev_document, mocap
@@ -101,7 +103,8 @@ def test_restructure_places_samples_in_order_and_carries_kept_ones(monkeypatch):
     kept segments' samples are the old ones, moved; every variable's samples
     are in order of knot coordinate; and small groups of variables give the
     same bits as large ones."""
-    from staggered_cli import representation
+    from staggered_cli.model import fit
+    from staggered_cli.model.restructure import _unchanged_segments
     from staggered_cli.ops import cull
 
     from .conftest import dev_document
@@ -113,7 +116,7 @@ def test_restructure_places_samples_in_order_and_carries_kept_ones(monkeypatch):
         knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
         whole = restructure(tr, knots, frame_t=doc.frame_times).base
         with monkeypatch.context() as m:
-            m.setattr(representation, "_FIT_GROUP", 500)
+            m.setattr(fit, "FIT_GROUP", 500)
             small = restructure(tr, knots, frame_t=doc.frame_times).base
         for name in ("tan_a", "tan_b", "samp_ptr", "samp_s", "samp_d"):
             np.testing.assert_array_equal(getattr(small, name), getattr(whole, name), err_msg=name)
@@ -122,7 +125,7 @@ def test_restructure_places_samples_in_order_and_carries_kept_ones(monkeypatch):
             s_i = whole.samp_s[whole.samp_ptr[i] : whole.samp_ptr[i + 1]]
             assert np.all(np.diff(s_i) >= 0), tr.names[i]
         # a kept segment carries its samples over unchanged
-        kept_old = representation._unchanged_segments(tr.base.knots, knots)
+        kept_old = _unchanged_segments(tr.base.knots, knots)
         for g in np.flatnonzero(kept_old >= 0)[:20]:
             i = int(knots.seg_var[g])
             old_s = tr.base.samp_s[tr.base.samples(i)]
@@ -160,7 +163,7 @@ def test_restructure_reads_the_motion_it_is_given_to_the_bit():
 
 
 def test_frame_and_knot_times_merge_as_unique_does():
-    from staggered_cli.representation import _with_knot_times
+    from staggered_cli.model.restructure import _with_knot_times
 
     frame_t = np.arange(10) * 0.1
     for knot_t in ([], [-0.05, 0.0], [0.1, 0.15, 0.16, 0.3], [0.85, 0.9, 0.95, 1.2], frame_t[[2, 5]]):
@@ -176,15 +179,17 @@ def test_extract_in_groups_and_blocks_gives_the_same_bits(monkeypatch):
     """The fit over groups of a few variables, forward kinematics, rotation
     steps and the placement proxy over small blocks of frames: the same
     document to the bit (every segment and frame is its own)."""
-    from staggered_cli import motion, placement, representation, signals
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli import motion
+    from staggered_cli.io.container import document_bytes
+    from staggered_cli.model import fit
     from staggered_cli.ops.extract import extract
+    from staggered_cli.signals import placement, trails
 
     path = mocap("cmu_01_01_forward_jumps.bvh")
     once = document_bytes(*to_parts(extract(read_bvh(path))), "npz")
-    monkeypatch.setattr(representation, "_FIT_GROUP", 3000)  # about one variable a group
+    monkeypatch.setattr(fit, "FIT_GROUP", 3000)  # about one variable a group
     monkeypatch.setattr(motion, "_FK_BLOCK", 31 * 100)
-    monkeypatch.setattr(signals, "_STEP_BLOCK", 32 * 77)
+    monkeypatch.setattr(trails, "_STEP_BLOCK", 32 * 77)
     monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
     assert document_bytes(*to_parts(extract(read_bvh(path))), "npz") == once
 
@@ -194,11 +199,12 @@ def test_cull_and_succession_in_small_groups_give_the_same_bits(monkeypatch, tmp
     groups of about one variable, carried variables one by one), the proxy's
     path and quat.unroll over small blocks of frames, and a document read in
     small pieces: the same documents to the bit as whole processing."""
-    from staggered_cli import placement, representation
     from staggered_cli.cli.common import read_document
-    from staggered_cli.io import document as document_io
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io import container
+    from staggered_cli.io.container import document_bytes
+    from staggered_cli.model import fit
     from staggered_cli.ops import cull, timing
+    from staggered_cli.signals import placement
 
     doc = dev_document("cmu_01_01_forward_jumps.bvh")
 
@@ -212,10 +218,10 @@ def test_cull_and_succession_in_small_groups_give_the_same_bits(monkeypatch, tmp
     path = tmp_path / "doc.stag"
     path.write_bytes(document_bytes(*to_parts(doc), "npz"))
     read_whole = read_document(str(path))
-    monkeypatch.setattr(representation, "_FIT_GROUP", 3000)  # about one variable a group
+    monkeypatch.setattr(fit, "FIT_GROUP", 3000)  # about one variable a group
     monkeypatch.setattr(placement, "_PROXY_BLOCK", 32 * 50)
     monkeypatch.setattr(quat, "_UNROLL_BLOCK", 31 * 4 * 7)
-    monkeypatch.setattr(document_io, "_READ_CHUNK", 1000)
+    monkeypatch.setattr(container, "_READ_CHUNK", 1000)
     assert steps(doc) == whole
     read_small = read_document(str(path))
     assert document_bytes(*to_parts(read_small), "npz") == document_bytes(*to_parts(read_whole), "npz")
@@ -256,7 +262,7 @@ def test_knots_of_all_variables_at_once_are_each_variables_own():
     pose's time (a tie the stable sort keeps in pose order): the same knots
     as one variable at a time; crossing knots name the variable and pose."""
     from staggered_cli.errors import KnotOrderError
-    from staggered_cli.representation import knots_from_poses
+    from staggered_cli.model.fit import knots_from_poses
 
     rng = np.random.default_rng(5)
     K, V = 9, 6
@@ -280,12 +286,12 @@ def test_knots_of_all_variables_at_once_are_each_variables_own():
 def test_samples_inside_the_knots_are_those_off_every_knot():
     """One search for both the segment and the nearest knots: a time on a
     knot, within 1e-9 s of one, between, before and after the knots."""
-    from staggered_cli.representation import _AT_KNOT, _inside, _locate
+    from staggered_cli.model.knots import _AT_KNOT, locate, locate_inside
 
     kt = np.array([0.0, 0.25, 0.5, 1.0])
     t = np.array([-0.1, 0.0, 0.5e-9, 0.1, 0.25 - 0.5e-9, 0.25, 0.25 + 2e-9, 0.7, 1.0 - 0.5e-9, 1.0, 1.2])
-    seg, u, keep = _inside(kt, t)
-    s2, u2 = _locate(kt, t)
+    seg, u, keep = locate_inside(kt, t)
+    s2, u2 = locate(kt, t)
     assert seg.tobytes() == s2.tobytes() and u.tobytes() == u2.tobytes()
     near = np.min(np.abs(t[:, None] - kt[None]), axis=1) <= _AT_KNOT
     assert keep.tolist() == (~near & (t > 0.0) & (t < 1.0)).tolist()

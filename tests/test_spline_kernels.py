@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli import quat, splines
+from staggered_cli import quat, quat_rows
+from staggered_cli.model import rotation_fit, rotation_spline
 
 
 def _same(a, b) -> None:
@@ -30,7 +31,7 @@ def _angles() -> list[np.ndarray]:
 # the plain formulas: each function on its own, masks always applied
 def _plain(x, closed, c0, c2, c4):
     x2 = x * x
-    small = x < splines._SERIES
+    small = x < quat_rows._SERIES
     with np.errstate(divide="ignore", invalid="ignore"):
         exact = closed(np.where(small, 1.0, x))
     return np.where(small, c0 + x2 * (c2 + x2 * c4), exact)
@@ -102,9 +103,9 @@ def test_sin_cos_from_the_half_tangent_is_as_accurate_as_libm():
 def test_coefficients_are_the_plain_functions(case):
     x = _angles()[case]
     for names in (("f1",), ("f2",), ("sinc",), ("g",), ("f1", "f2"), ("f1", "f2", "sinc"), ("g", "sinc", "f1")):
-        for name, got in zip(names, splines._coefficients(x, *names), strict=True):
+        for name, got in zip(names, quat_rows.coefficients(x, *names), strict=True):
             _same(got, PLAIN[name](x))
-    _same(splines._g(x), PLAIN["g"](x))
+    _same(quat_rows.jr_inv_k2(x), PLAIN["g"](x))
 
 
 def _plain_qexp(v, angle):
@@ -133,16 +134,16 @@ def test_qexp_and_qlog_are_the_plain_formulas(scale):
         v = rng.normal(size=(3, n)) * scale
         v[:, ::7] *= 1e-10  # some angles below 1e-8 among the others
         angle = np.sqrt(np.sum(v * v, axis=0))
-        _same(splines._qexp_t(v, angle), _plain_qexp(v, angle))
+        _same(quat_rows.exp(v, angle), _plain_qexp(v, angle))
         q = rng.normal(size=(4, n))
         q[1:] *= scale
         q[1:, ::5] *= 1e-10
         q[0, ::3] *= -1.0
         q /= np.sqrt(np.sum(q * q, axis=0))
-        for got, want in zip(splines._qlog_t(q), _plain_qlog(q), strict=True):
+        for got, want in zip(quat_rows.log(q), _plain_qlog(q), strict=True):
             _same(got, want)
     edge = np.array([[1.0, -1.0, 0.0, -0.0, 0.6], [0.0, 0.0, 1.0, 1.0, 0.8], [0.0] * 5, [0.0] * 5])
-    for got, want in zip(splines._qlog_t(edge), _plain_qlog(edge), strict=True):
+    for got, want in zip(quat_rows.log(edge), _plain_qlog(edge), strict=True):
         _same(got, want)
 
 
@@ -151,9 +152,9 @@ def test_matrix_kernels_are_the_plain_formulas(n):
     rng = np.random.default_rng(n)
     for k in (3, 6):
         a, b = rng.normal(size=(3, 3, n)), rng.normal(size=(3, k, n))
-        _same(splines._mm(a, b), np.einsum("ijn,jkn->ikn", a, b, order="C"))
+        _same(quat_rows.mm(a, b), np.einsum("ijn,jkn->ikn", a, b, order="C"))
         out = np.empty((3, 2 * k, n))
-        splines._mm(a, b, out=out[:, k:])
+        quat_rows.mm(a, b, out=out[:, k:])
         _same(out[:, k:], np.einsum("ijn,jkn->ikn", a, b, order="C"))
     w = rng.normal(size=(3, n))
     t2 = np.sum(w * w, axis=0)
@@ -172,7 +173,7 @@ def test_matrix_kernels_are_the_plain_formulas(n):
                 elif (i, j) in ((1, 0), (2, 1), (0, 2)):
                     entry = entry + k_[3 - i - j]
                 want[i, j] = entry
-        _same(splines._pmatrix(p, w, t2), want)
+        _same(quat_rows.pmatrix(p, w, t2), want)
 
 
 def test_gram_sums_are_the_whole_product():
@@ -183,7 +184,7 @@ def test_gram_sums_are_the_whole_product():
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     jj = j[0][:, None] * j[0][None] + j[1][:, None] * j[1][None] + j[2][:, None] * j[2][None]
     want = np.moveaxis(np.add.reduceat(jj, starts, axis=-1), -1, 0)
-    _same(splines._gram_sums(j, starts), want)
+    _same(rotation_fit._gram_sums(j, starts), want)
 
 
 def _fit_case(seed: int, n_seg: int = 60):
@@ -200,13 +201,13 @@ def _fit_case(seed: int, n_seg: int = 60):
 @pytest.mark.parametrize("chunk", [16, 97, 1024])
 def test_fit_and_eval_do_not_depend_on_the_chunks(monkeypatch, chunk):
     q0, q3, seg, u, values, n = _fit_case(5)
-    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n)
-    s = splines.rotation_eval_at(q0, a, b, q3, seg, u)
-    monkeypatch.setattr(splines, "_CHUNK", chunk)
-    a2, b2 = splines.fit_rotation_tangents(q0, q3, seg, u, values, n)
+    a, b = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n)
+    s = rotation_spline.rotation_eval_at(q0, a, b, q3, seg, u)
+    monkeypatch.setattr(rotation_spline, "CHUNK", chunk)
+    a2, b2 = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n)
     _same(a2, a)
     _same(b2, b)
-    _same(splines.rotation_eval_at(q0, a, b, q3, seg, u), s)
+    _same(rotation_spline.rotation_eval_at(q0, a, b, q3, seg, u), s)
 
 
 def test_fit_jacobians_where_used_match_jacobians_everywhere(monkeypatch):
@@ -214,15 +215,15 @@ def test_fit_jacobians_where_used_match_jacobians_everywhere(monkeypatch):
     takes the errors of evaluations without it: with the Jacobian built at
     every evaluation (as the plain loop does) the tangents are the same."""
     q0, q3, seg, u, values, n = _fit_case(9, 120)
-    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
-    call = splines._NormalEquations.__call__
+    a, b = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
+    call = rotation_fit._NormalEquations.__call__
 
     def always(self, rows, x, jacobian=True, curve=None, **kw):  # every evaluation with its Jacobian
         cost, jtj, jtr = call(self, rows, x, True, curve, **kw)
         return (cost, jtj, jtr) if jacobian else (cost, None, None)
 
-    monkeypatch.setattr(splines._NormalEquations, "__call__", always)
-    a2, b2 = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
+    monkeypatch.setattr(rotation_fit._NormalEquations, "__call__", always)
+    a2, b2 = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30)
     _same(a2, a)
     _same(b2, b)
 
@@ -234,18 +235,18 @@ def test_tail_steps_with_their_jacobian_in_one_call_are_the_same_fit(monkeypatch
     same tangents and curve, and saves calls."""
     q0, q3, seg, u, values, n = _fit_case(9, 120)
     calls = []
-    call = splines._NormalEquations.__call__
+    call = rotation_fit._NormalEquations.__call__
 
     def counted(self, rows, x, jacobian=True, curve=None, **kw):
         calls.append(jacobian)
         return call(self, rows, x, jacobian, curve, **kw)
 
-    monkeypatch.setattr(splines._NormalEquations, "__call__", counted)
-    ref = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
+    monkeypatch.setattr(rotation_fit._NormalEquations, "__call__", counted)
+    ref = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
     default_calls = len(calls)
     calls.clear()
-    monkeypatch.setattr(splines, "_TAIL_SAMPLES", tail)
-    got = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
+    monkeypatch.setattr(rotation_fit, "_TAIL_SAMPLES", tail)
+    got = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=30, return_curve=True)
     for x, y in zip(got, ref, strict=True):
         _same(x, y)
     if tail == 0:
@@ -264,22 +265,22 @@ def test_next_steps_tried_in_one_call_are_the_same_fit(monkeypatch, budget):
     q0, q3, seg, u, values, n = _fit_case(9, 120)
     rng = np.random.default_rng(4)
     values = quat.normalize(values + rng.normal(scale=0.4, size=values.shape) * (seg % 5 == 0)[:, None])
-    call = splines._NormalEquations.__call__
+    call = rotation_fit._NormalEquations.__call__
     calls = []
 
     def counted(self, *args, **kw):
         calls.append(1)
         return call(self, *args, **kw)
 
-    monkeypatch.setattr(splines._NormalEquations, "__call__", counted)
+    monkeypatch.setattr(rotation_fit._NormalEquations, "__call__", counted)
     for iterations in (10, 30):
-        monkeypatch.setattr(splines, "_TRIAL_SAMPLES", 0)
+        monkeypatch.setattr(rotation_fit, "_TRIAL_SAMPLES", 0)
         calls.clear()
-        ref = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations, return_curve=True)
+        ref = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations, return_curve=True)
         plain = len(calls)
-        monkeypatch.setattr(splines, "_TRIAL_SAMPLES", budget)
+        monkeypatch.setattr(rotation_fit, "_TRIAL_SAMPLES", budget)
         calls.clear()
-        got = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations, return_curve=True)
+        got = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations, return_curve=True)
         for x, y in zip(got, ref, strict=True):
             _same(x, y)
         assert len(calls) < plain if budget else len(calls) == plain
@@ -306,9 +307,9 @@ def test_next_steps_tried_in_one_call_on_random_fits(monkeypatch):
         iterations, curve = int(rng.integers(0, 15)), bool(rng.random() < 0.7)
         fits = []
         for budget in (0, 256, 10**9):
-            monkeypatch.setattr(splines, "_TRIAL_SAMPLES", budget)
+            monkeypatch.setattr(rotation_fit, "_TRIAL_SAMPLES", budget)
             fits.append(
-                splines.fit_rotation_tangents(
+                rotation_fit.fit_rotation_tangents(
                     knots[:-1], knots[1:], seg, u, values, S, iterations=iterations, return_curve=curve
                 )
             )
@@ -323,15 +324,15 @@ def test_qmul_conj_is_the_product_with_the_negated_copy(n):
     a, b = rng.normal(size=(4, n)), rng.normal(size=(4, n))
     a[:, ::4] = [[1.0], [0.0], [-0.0], [0.0]]  # signed zeros on both sides
     b[:, ::3] = [[-0.0], [0.0], [1.0], [-0.0]]
-    _same(splines._qmul_conj_t(a, b), splines._qmul_t(a * splines._CONJ, b))
+    _same(quat_rows.mul_conj(a, b), quat_rows.mul(a * quat_rows._CONJ, b))
 
 
 @pytest.mark.parametrize("iterations", [0, 1, 30])
 def test_fit_returns_the_curve_rotation_eval_at_gives(iterations):
     q0, q3, seg, u, values, n = _fit_case(13, 80)
     u[::11] = 0.0  # samples the fit does not use
-    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations)
-    a2, b2, at, curve = splines.fit_rotation_tangents(
+    a, b = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, n, iterations=iterations)
+    a2, b2, at, curve = rotation_fit.fit_rotation_tangents(
         q0, q3, seg, u, values, n, iterations=iterations, return_curve=True
     )
     _same(a2, a)
@@ -339,4 +340,4 @@ def test_fit_returns_the_curve_rotation_eval_at_gives(iterations):
     assert np.all(np.diff(np.sort(at)) > 0) and np.all((u[at] > 0.0) & (u[at] < 1.0))
     if iterations:
         assert at.size > 0.8 * seg.size
-    _same(curve, splines.rotation_eval_at(q0, a, b, q3, seg[at], u[at]))
+    _same(curve, rotation_spline.rotation_eval_at(q0, a, b, q3, seg[at], u[at]))

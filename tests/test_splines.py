@@ -1,4 +1,4 @@
-"""Spline segments and their batched fits (staggered_cli.splines).
+"""Spline segments and their batched fits (staggered_cli.model: segments, bezier, rotation_spline, rotation_fit).
 
 Also holds the slow reference: the paper's Appendix A fit (per segment
 Nelder-Mead on squared angles plus a unit-length penalty), which the batched
@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares, minimize
 
-from staggered_cli import quat, splines
+from staggered_cli import quat
 from staggered_cli.io.bvh import read_bvh
+from staggered_cli.model import bezier, rotation_fit, rotation_spline
 
 from .conftest import mocap
 
@@ -119,7 +120,7 @@ def paper_reference_fit(q0, q3, u, values) -> tuple[np.ndarray, np.ndarray]:
 
 def reference_fit_segments(data: dict, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`paper_reference_fit` on segments ``rows`` (others keep the defaults)."""
-    a, b = splines.default_rotation_tangents(data["q0"], data["q3"])
+    a, b = rotation_spline.default_rotation_tangents(data["q0"], data["q3"])
     order = np.argsort(data["seg"], kind="stable")
     first = np.searchsorted(data["seg"][order], np.arange(data["n_segments"] + 1))
     for s in rows:
@@ -131,7 +132,7 @@ def reference_fit_segments(data: dict, rows: np.ndarray) -> tuple[np.ndarray, np
 
 def fit_errors(data: dict, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """RMS angle (radians) per segment."""
-    return splines.rotation_fit_errors(
+    return rotation_fit.rotation_fit_errors(
         data["q0"], a, b, data["q3"], data["seg"], data["u"], data["values"], data["n_segments"]
     )
 
@@ -147,7 +148,7 @@ def _random_unit(rng, n):
 def _random_rotation_segments(rng, n, spread=1.0, tangent=0.3):
     q0 = _random_unit(rng, n)
     q3 = quat.mul(q0, quat.exp(rng.normal(size=(n, 3)) * spread))
-    a0, b0 = splines.default_rotation_tangents(q0, q3)
+    a0, b0 = rotation_spline.default_rotation_tangents(q0, q3)
     a = a0 + rng.normal(size=(n, 3)) * tangent
     b = b0 + rng.normal(size=(n, 3)) * tangent
     return q0, a, b, q3
@@ -164,9 +165,9 @@ def _same_rotation(p, q, atol=1e-12):
 def test_default_translation_is_uniform_straight_line():
     rng = np.random.default_rng(1)
     p0, p3 = rng.normal(size=(5, 3)) * 10, rng.normal(size=(5, 3)) * 10
-    a, b = splines.default_translation_tangents(p0, p3)
+    a, b = bezier.default_translation_tangents(p0, p3)
     u = np.linspace(0.0, 1.0, 13)
-    got = splines.bezier_eval(p0, a, b, p3, u)
+    got = bezier.bezier_eval(p0, a, b, p3, u)
     want = p0[:, None] + u[None, :, None] * (p3 - p0)[:, None]
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
@@ -174,13 +175,13 @@ def test_default_translation_is_uniform_straight_line():
 def test_bezier_interpolates_endpoints_and_matches_indexed_eval():
     rng = np.random.default_rng(2)
     p0, a, b, p3 = (rng.normal(size=(4, 2)) for _ in range(4))
-    got = splines.bezier_eval(p0, a, b, p3, np.array([0.0, 1.0]))
+    got = bezier.bezier_eval(p0, a, b, p3, np.array([0.0, 1.0]))
     np.testing.assert_array_equal(got[:, 0], p0)
     np.testing.assert_allclose(got[:, 1], p3, rtol=0, atol=1e-15)
     u = rng.uniform(size=9)
     seg = rng.integers(0, 4, size=9)
-    at = splines.bezier_eval_at(p0, a, b, p3, seg, u)
-    full = splines.bezier_eval(p0, a, b, p3, u)
+    at = bezier.bezier_eval_at(p0, a, b, p3, seg, u)
+    full = bezier.bezier_eval(p0, a, b, p3, u)
     np.testing.assert_allclose(at, full[seg, np.arange(9)], rtol=0, atol=1e-14)
     # the controls are P1 = p0 + a and P2 = p3 + b
     P1, P2 = p0 + a, p3 + b
@@ -195,9 +196,9 @@ def test_translation_fit_recovers_known_controls():
     p0, a, b, p3 = (rng.normal(size=(S, 3)) * 5 for _ in range(4))
     seg = np.repeat(np.arange(S), M)
     u = np.tile(np.arange(M + 2)[1:-1] / (M + 1), S)
-    values = splines.bezier_eval_at(p0, a, b, p3, seg, u)
+    values = bezier.bezier_eval_at(p0, a, b, p3, seg, u)
     args = [x.copy() for x in (p0, p3, seg, u, values)]
-    fa, fb = splines.fit_translation_tangents(p0, p3, seg, u, values, S)
+    fa, fb = bezier.fit_translation_tangents(p0, p3, seg, u, values, S)
     np.testing.assert_allclose(fa, a, rtol=0, atol=1e-9)
     np.testing.assert_allclose(fb, b, rtol=0, atol=1e-9)
     for before, after in zip(args, (p0, p3, seg, u, values), strict=True):
@@ -213,22 +214,22 @@ def test_translation_fit_keeps_defaults_where_undetermined():
     seg = np.array([0, 0, 0, 2, 2, 3, 3])
     u = np.array([0.0, 0.5, 1.0, 0.5, 0.5 + 1e-12, 0.3, 0.7])
     values = rng.normal(size=(7, 3))
-    a, b = splines.fit_translation_tangents(p0, p3, seg, u, values, 4)
-    da, db = splines.default_translation_tangents(p0, p3)
+    a, b = bezier.fit_translation_tangents(p0, p3, seg, u, values, 4)
+    da, db = bezier.default_translation_tangents(p0, p3)
     np.testing.assert_array_equal(a[:3], da[:3])
     np.testing.assert_array_equal(b[:3], db[:3])
-    fit = splines.bezier_eval_at(p0, a, b, p3, seg[5:], u[5:])
+    fit = bezier.bezier_eval_at(p0, a, b, p3, seg[5:], u[5:])
     np.testing.assert_allclose(fit, values[5:], rtol=0, atol=1e-10)
 
 
 def test_translation_bad_input_names_the_argument():
     p = np.zeros((2, 3))
     with pytest.raises(ValueError, match="seg"):
-        splines.fit_translation_tangents(p, p, np.array([0, 2]), np.array([0.2, 0.4]), np.zeros((2, 3)), 2)
+        bezier.fit_translation_tangents(p, p, np.array([0, 2]), np.array([0.2, 0.4]), np.zeros((2, 3)), 2)
     with pytest.raises(ValueError, match="values"):
-        splines.fit_translation_tangents(p, p, np.array([0, 1]), np.array([0.2, 0.4]), np.zeros((3, 3)), 2)
+        bezier.fit_translation_tangents(p, p, np.array([0, 1]), np.array([0.2, 0.4]), np.zeros((3, 3)), 2)
     with pytest.raises(ValueError, match="same shape"):
-        splines.bezier_eval(p, p, p, np.zeros((3, 3)), np.array([0.5]))
+        bezier.bezier_eval(p, p, p, np.zeros((3, 3)), np.array([0.5]))
 
 
 # ---------------------------------------------------------------------------
@@ -240,16 +241,16 @@ def test_default_rotation_tangents_reproduce_slerp():
     q0 = _random_unit(rng, 40)
     q3 = _random_unit(rng, 40)  # about half of them on the other hemisphere
     assert np.any(np.sum(q0 * q3, axis=-1) < 0)
-    a, b = splines.default_rotation_tangents(q0, q3)
+    a, b = rotation_spline.default_rotation_tangents(q0, q3)
     u = np.linspace(0.0, 1.0, 17)
-    got = splines.rotation_eval(q0, a, b, q3, u)
+    got = rotation_spline.rotation_eval(q0, a, b, q3, u)
     _same_rotation(got, quat.slerp(q0[:, None], q3[:, None], u[None]), atol=1e-12)
 
 
 def test_rotation_interpolates_endpoints():
     rng = np.random.default_rng(6)
     q0, a, b, q3 = _random_rotation_segments(rng, 30, spread=1.0, tangent=0.5)
-    got = splines.rotation_eval(q0, a, b, q3, np.array([0.0, 1.0]))
+    got = rotation_spline.rotation_eval(q0, a, b, q3, np.array([0.0, 1.0]))
     np.testing.assert_allclose(got[:, 0], q0, rtol=0, atol=1e-15)  # exactly q0, same sign
     _same_rotation(got[:, 1], q3, atol=1e-12)
 
@@ -259,13 +260,13 @@ def test_rotation_is_sign_blind_in_its_endpoints():
     q0, a, b, q3 = _random_rotation_segments(rng, 30, spread=1.5, tangent=0.5)
     u = rng.uniform(size=100)
     seg = rng.integers(0, 30, size=100)
-    ref = splines.rotation_eval_at(q0, a, b, q3, seg, u)
+    ref = rotation_spline.rotation_eval_at(q0, a, b, q3, seg, u)
     for s0, s3 in ((-1, 1), (1, -1), (-1, -1)):
-        _same_rotation(splines.rotation_eval_at(s0 * q0, a, b, s3 * q3, seg, u), ref, atol=1e-12)
+        _same_rotation(rotation_spline.rotation_eval_at(s0 * q0, a, b, s3 * q3, seg, u), ref, atol=1e-12)
     # angles above pi are the same rotations as the wrapped vectors
     n = np.linalg.norm(a, axis=-1, keepdims=True)
     a_long = a - 2 * np.pi * a / n
-    _same_rotation(splines.rotation_eval_at(q0, a_long, b, q3, seg, u), ref, atol=1e-12)
+    _same_rotation(rotation_spline.rotation_eval_at(q0, a_long, b, q3, seg, u), ref, atol=1e-12)
 
 
 def test_rotation_eval_matches_shoemake_de_casteljau():
@@ -279,7 +280,7 @@ def test_rotation_eval_matches_shoemake_de_casteljau():
     l1 = [quat.slerp(c[i], c[i + 1], uu) for i in range(3)]
     l2 = [quat.slerp(l1[i], l1[i + 1], uu) for i in range(2)]
     want = quat.slerp(l2[0], l2[1], uu)
-    got = splines.rotation_eval(q0, a, b, q3, u)
+    got = rotation_spline.rotation_eval(q0, a, b, q3, u)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(got, axis=-1), 1.0, rtol=0, atol=1e-15)
 
@@ -289,19 +290,19 @@ def test_rotation_jacobian_matches_finite_differences():
     n = 400
     # tiny to large tangents and residuals, to reach both the series and closed forms
     scale = np.repeat([1e-6, 1e-3, 0.1, 1.0, 2.5], n // 5)[:, None]
-    x = splines._wrap_rotation_vector(rng.normal(size=(n, 6)).reshape(n, 2, 3) * scale[:, None]).reshape(n, 6)
+    x = rotation_spline.wrap_rotation_vector(rng.normal(size=(n, 6)).reshape(n, 2, 3) * scale[:, None]).reshape(n, 6)
     q0 = _random_unit(rng, n)
     q3 = quat.mul(q0, quat.exp(rng.normal(size=(n, 3)) * scale))
     values = quat.mul(q0, quat.exp(rng.normal(size=(n, 3)) * scale))
     u = rng.uniform(0.01, 0.99, size=n)
-    _, jac = splines._rotation_residuals(q0, x, q3, u, values, True)
+    _, jac = rotation_fit._rotation_residuals(q0, x, q3, u, values, True)
     h = 1e-6
     fd = np.empty_like(jac)
     for k in range(6):
         e = np.zeros(6)
         e[k] = h
-        rp, _ = splines._rotation_residuals(q0, x + e, q3, u, values, False)
-        rm, _ = splines._rotation_residuals(q0, x - e, q3, u, values, False)
+        rp, _ = rotation_fit._rotation_residuals(q0, x + e, q3, u, values, False)
+        rm, _ = rotation_fit._rotation_residuals(q0, x - e, q3, u, values, False)
         fd[:, :, k] = (rp - rm) / (2 * h)
     np.testing.assert_allclose(jac, fd, rtol=0, atol=1e-7)
 
@@ -310,11 +311,11 @@ def test_rotation_bad_input_names_the_argument():
     q = quat.identity((2,))
     v = np.zeros((2, 3))
     with pytest.raises(ValueError, match="a and b"):
-        splines.rotation_eval_at(q, np.zeros((3, 3)), v, q, np.array([0]), np.array([0.5]))
+        rotation_spline.rotation_eval_at(q, np.zeros((3, 3)), v, q, np.array([0]), np.array([0.5]))
     with pytest.raises(ValueError, match="seg"):
-        splines.rotation_eval_at(q, v, v, q, np.array([5]), np.array([0.5]))
+        rotation_spline.rotation_eval_at(q, v, v, q, np.array([5]), np.array([0.5]))
     with pytest.raises(ValueError, match="values"):
-        splines.fit_rotation_tangents(q, q, np.array([0, 0]), np.array([0.2, 0.4]), np.zeros((2, 3)), 2)
+        rotation_fit.fit_rotation_tangents(q, q, np.array([0, 0]), np.array([0.2, 0.4]), np.zeros((2, 3)), 2)
 
 
 # ---------------------------------------------------------------------------
@@ -327,13 +328,13 @@ def test_rotation_fit_recovers_known_tangents():
     q0, a, b, q3 = _random_rotation_segments(rng, S, spread=0.8, tangent=0.3)
     seg = np.repeat(np.arange(S), M)
     u = np.tile(np.arange(1, M + 1) / (M + 1), S)
-    values = splines.rotation_eval_at(q0, a, b, q3, seg, u)
+    values = rotation_spline.rotation_eval_at(q0, a, b, q3, seg, u)
     values = values * rng.choice([-1.0, 1.0], size=(values.shape[0], 1))  # samples of either sign
     args = [x.copy() for x in (q0, q3, seg, u, values)]
-    fa, fb = splines.fit_rotation_tangents(q0, q3, seg, u, values, S)
+    fa, fb = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, S)
     np.testing.assert_allclose(fa, a, rtol=0, atol=1e-6)
     np.testing.assert_allclose(fb, b, rtol=0, atol=1e-6)
-    assert np.max(splines.rotation_fit_errors(q0, fa, fb, q3, seg, u, values, S)) < 1e-8
+    assert np.max(rotation_fit.rotation_fit_errors(q0, fa, fb, q3, seg, u, values, S)) < 1e-8
     for before, after in zip(args, (q0, q3, seg, u, values), strict=True):
         np.testing.assert_array_equal(before, after)  # inputs untouched
 
@@ -349,15 +350,15 @@ def test_rotation_fit_never_worse_than_slerp_and_keeps_defaults_where_undetermin
     seg = np.concatenate([seg, [S - 3, S - 2, S - 2, S - 1, S - 1]])
     u = np.concatenate([u, [0.5, 0.0, 1.0, 0.4, 0.6]])
     # the last segment's two samples come from a cubic near slerp
-    da, db = splines.default_rotation_tangents(q0[-1:], q3[-1:])
-    exact = splines.rotation_eval_at(q0[-1:], da + 0.1, db - 0.1, q3[-1:], np.zeros(2, int), u[-2:])
+    da, db = rotation_spline.default_rotation_tangents(q0[-1:], q3[-1:])
+    exact = rotation_spline.rotation_eval_at(q0[-1:], da + 0.1, db - 0.1, q3[-1:], np.zeros(2, int), u[-2:])
     values = np.concatenate([values, _random_unit(rng, 3), exact])
-    a, b = splines.fit_rotation_tangents(q0, q3, seg, u, values, S)
+    a, b = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, S)
     assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
     assert np.all(np.linalg.norm(a, axis=-1) <= np.pi + 1e-12)
-    da, db = splines.default_rotation_tangents(q0, q3)
-    err = splines.rotation_fit_errors(q0, a, b, q3, seg, u, values, S)
-    err0 = splines.rotation_fit_errors(q0, da, db, q3, seg, u, values, S)
+    da, db = rotation_spline.default_rotation_tangents(q0, q3)
+    err = rotation_fit.rotation_fit_errors(q0, a, b, q3, seg, u, values, S)
+    err0 = rotation_fit.rotation_fit_errors(q0, da, db, q3, seg, u, values, S)
     assert np.all(err <= err0 + 1e-12)
     assert np.mean(err) < np.mean(err0)
     # one usable sample (S-3), only endpoint samples (S-2): defaults
@@ -376,10 +377,10 @@ def test_rotation_fit_handles_static_and_half_turn_segments():
     # segment whose samples stay at q0 while the knot turns away
     half_turn = quat.slerp(quat.identity((5,)), np.tile(q3[1], (5, 1)), u[:5])
     values = np.concatenate([quat.identity((5,)), half_turn, quat.identity((5,))])
-    a, b = splines.fit_rotation_tangents(q, q3, seg, u, values, 3)
+    a, b = rotation_fit.fit_rotation_tangents(q, q3, seg, u, values, 3)
     assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
     np.testing.assert_array_equal(a[0], 0.0)  # static: exact already
-    err = splines.rotation_fit_errors(q, a, b, q3, seg, u, values, 3)
+    err = rotation_fit.rotation_fit_errors(q, a, b, q3, seg, u, values, 3)
     assert err[0] == 0.0 and err[1] < 1e-6
 
 
@@ -391,7 +392,8 @@ def test_reference_curve_matches_splines_at_unit_controls():
     for s in range(5):
         q1, q2 = quat.mul(q0[s], quat.exp(a[s])), quat.mul(q3[s], quat.exp(b[s]))
         raw = _raw_curve(q0[s], q1, q2, q3[s], u)
-        _same_rotation(raw, splines.rotation_eval(q0[s : s + 1], a[s : s + 1], b[s : s + 1], q3[s : s + 1], u)[0])
+        one = rotation_spline.rotation_eval(q0[s : s + 1], a[s : s + 1], b[s : s + 1], q3[s : s + 1], u)[0]
+        _same_rotation(raw, one)
         values = _random_unit(rng, 7)
         half = 0.5 * quat.angle_between(raw, values)
         f = paper_objective(np.concatenate([q1, q2]), q0[s], q3[s], u, values)
@@ -416,8 +418,8 @@ def _segment_residuals(q0, q3, u, values):
     q0, q3 = np.repeat(q0[None], n, 0), np.repeat(q3[None], n, 0)
 
     def resid(x):
-        xx = splines._wrap_rotation_vector(np.repeat(x.reshape(1, 2, 3), n, 0)).reshape(n, 6)
-        return splines._rotation_residuals(q0, xx, q3, u, values, False)[0].ravel()
+        xx = rotation_spline.wrap_rotation_vector(np.repeat(x.reshape(1, 2, 3), n, 0)).reshape(n, 6)
+        return rotation_fit._rotation_residuals(q0, xx, q3, u, values, False)[0].ravel()
 
     return resid
 
@@ -426,7 +428,7 @@ def test_rotation_fit_reaches_a_minimum_on_real_segments(real_segments):
     """MINPACK's Levenberg-Marquardt, run to full precision from our solution, finds nothing better."""
     rng = np.random.default_rng(12)
     for data in real_segments.values():
-        a, b = splines.fit_rotation_tangents(
+        a, b = rotation_fit.fit_rotation_tangents(
             data["q0"], data["q3"], data["seg"], data["u"], data["values"], data["n_segments"], rtol=1e-8
         )
         count = np.bincount(data["seg"], minlength=data["n_segments"])
@@ -446,8 +448,8 @@ def test_default_stopping_ends_near_the_converged_fit(real_segments):
         args = (data["q0"], data["q3"], data["seg"], data["u"], data["values"], data["n_segments"])
         costs = []
         for kw in ({}, {"rtol": 1e-8}):
-            a, b = splines.fit_rotation_tangents(*args, **kw)
-            rms = splines.rotation_fit_errors(
+            a, b = rotation_fit.fit_rotation_tangents(*args, **kw)
+            rms = rotation_fit.rotation_fit_errors(
                 data["q0"], a, b, data["q3"], data["seg"], data["u"], data["values"], args[-1]
             )
             costs.append(rms**2)
@@ -474,7 +476,7 @@ def test_rotation_fit_beats_paper_nelder_mead_on_real_segments(real_segments):
             "n_segments": rows.size,
         }
         t = time.perf_counter()
-        a, b = splines.fit_rotation_tangents(sub["q0"], sub["q3"], sub["seg"], sub["u"], sub["values"], rows.size)
+        a, b = rotation_fit.fit_rotation_tangents(sub["q0"], sub["q3"], sub["seg"], sub["u"], sub["values"], rows.size)
         ours_time += time.perf_counter() - t
         t = time.perf_counter()
         ra, rb = reference_fit_segments(sub, np.arange(rows.size))

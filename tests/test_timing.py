@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from staggered_cli.io.document import from_parts, to_parts
+from staggered_cli.io.schema import from_parts, to_parts
 from staggered_cli.ops import timing
 from staggered_cli.ops.bake import bake
 
@@ -116,7 +116,7 @@ def test_a_knot_crossing_names_its_time_to_the_frame():
     import pytest
 
     from staggered_cli.errors import KnotOrderError
-    from staggered_cli.representation import check_knot_order
+    from staggered_cli.model.knots import check_knot_order
 
     ptr, t = np.array([0, 3]), np.array([0.0, 0.90166, 0.90166])
     with pytest.raises(KnotOrderError, match=r"knots of 'Toe' would cross at 0\.902 s$"):

@@ -13,7 +13,7 @@ from .options import check_output, document_format, emit, load_document
 
 
 def read_document(path: str):
-    """The :class:`~staggered_cli.document.Document` in ``path`` (``-``: stdin,
+    """The :class:`~staggered_cli.model.document.Document` in ``path`` (``-``: stdin,
     where a batch's previous step may have handed over the Document itself)."""
     from ..io.files import STDIO
 

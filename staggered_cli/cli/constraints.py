@@ -88,7 +88,7 @@ def constraints(
     """
     from dataclasses import replace
 
-    from ..document import Constraint
+    from ..model.document import Constraint
     from ..ops.constraints import checked_span, redetect
 
     editing = bool(adds or removes or detect)

@@ -134,7 +134,7 @@ def edit_pose(
             "--joints restricts --exaggerate, --from-bvh and --ease (--rotate and --translate name their own joints)"
         )
     doc = read_document(input_path)
-    from ..document import check_pose_index
+    from ..model.document import check_pose_index
     from ..ops.layers import ease as ease_op
 
     k = check_pose_index(doc, pose, layer)

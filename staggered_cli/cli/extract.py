@@ -19,9 +19,9 @@ def _names(value: str | None) -> list[str] | None:
 
 def _read_motion(path: str):
     """The clip in ``path``; a document is refused."""
-    from ..document import Document
     from ..errors import UsageError
     from ..io.files import display_name
+    from ..model.document import Document
     from ..ops.extract import MAX_EXTRACT_VALUES
 
     # a BVH too large to extract is refused from its header, before its values are parsed

@@ -36,8 +36,8 @@ import click
 
 from .. import __version__
 from ..errors import StaggeredError
-from ..heap import reuse_freed_memory
-from ..log import PROG, configure_logging
+from .heap import reuse_freed_memory
+from .log import PROG, configure_logging
 from .options import INPUT_KEY
 
 #: command name -> "module:attribute" of its click command.

@@ -36,8 +36,8 @@ def new(input_path, times, output, force, fmt):
     displacement maps are empty.  The motion runs at FILE's frame time.
     """
     from ..api import new as op
-    from ..document import Document
     from ..errors import UsageError
+    from ..model.document import Document
     from ..motion import BvhMotion
     from .extract import read_motion
 

@@ -30,7 +30,7 @@ from ..errors import UsageError
 from ..io import files
 
 if TYPE_CHECKING:
-    from ..document import Document
+    from ..model.document import Document
     from ..motion import BvhMotion, MarkerMotion
 
 STDIO = files.STDIO
@@ -127,7 +127,7 @@ def load_input(path: str) -> BvhMotion | MarkerMotion | Document:
 def load_document(path: str) -> Document:
     """Like :func:`load_input` but insists on a document: a BVH or C3D given
     where a document is needed is a ``UsageError`` that says what to run."""
-    from ..document import Document
+    from ..model.document import Document
 
     obj = load_input(path)
     if isinstance(obj, Document):
@@ -159,7 +159,7 @@ def emit(path: str, data, force: bool) -> None:
         # of pieces, the first tells what it is (a zip header, or all the JSON)
         head = bytes(memoryview(data[0] if isinstance(data, list | tuple) and data else data)[:8192])
         if _is_binary(head) and out is not None and out.isatty():
-            from ..io.document import is_document
+            from ..io.container import is_document
 
             if is_document(head):
                 hint = "refusing to write a binary (NPZ) document to the terminal: use -o FILE or --format json"

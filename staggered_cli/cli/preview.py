@@ -58,7 +58,7 @@ def parse_at(value: str | None) -> tuple[str | None, int | None]:
 
 
 def _subject(path: str):
-    """A document (as :class:`~staggered_cli.document.Document`) or a clip."""
+    """A document (as :class:`~staggered_cli.model.document.Document`) or a clip."""
     return load_input(path)
 
 

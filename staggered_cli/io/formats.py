@@ -16,7 +16,7 @@ from ..errors import DataError, StaggeredError, UsageError, arg
 from . import files
 
 if TYPE_CHECKING:
-    from ..document import Document
+    from ..model.document import Document
     from ..motion import BvhMotion, MarkerMotion
 
 STDIO = files.STDIO
@@ -32,7 +32,7 @@ def detect_kind(data: bytes) -> str:
     Extensions are not looked at (SPEC section 1).  Raises ``ValueError`` for
     anything else; :func:`read` turns that into a ``DataError``.
     """
-    from .document import is_document
+    from .container import is_document
 
     if is_document(data):
         return "document"
@@ -85,7 +85,8 @@ def parse(data: bytes, name: str, *, max_bvh_values: int | None = None, path: st
         raise DataError(str(err), source=name) from None
     try:
         if kind == "document":
-            from .document import from_parts, parse_document
+            from .container import parse_document
+            from .schema import from_parts
 
             return from_parts(*parse_document(data, name))
         if kind == "c3d":
@@ -129,7 +130,8 @@ def read(source: str | os.PathLike | bytes | bytearray | memoryview | BinaryIO, 
     path = os.fspath(source)
     zipped = files.open_zip(path)
     if zipped is not None:  # an NPZ document, read from the file: no copy of it in memory
-        from .document import from_parts, parse_document
+        from .container import parse_document
+        from .schema import from_parts
 
         name = files.display_name(path)
         with zipped:
@@ -194,11 +196,12 @@ def document_format(fmt: str | None, output: str) -> str:
 def pieces(value, fmt: str | None = None, name: str = STDIO) -> list | bytes:
     """The bytes of ``value`` as written: a Document (NPZ or JSON by ``fmt``
     or the name), a BvhMotion as BVH text, a MarkerMotion as C3D."""
-    from ..document import Document
+    from ..model.document import Document
     from ..motion import BvhMotion, MarkerMotion
 
     if isinstance(value, Document):
-        from .document import document_pieces, to_parts
+        from .container import document_pieces
+        from .schema import to_parts
 
         manifest, arrays = to_parts(value)
         return document_pieces(manifest, arrays, document_format(fmt, name))
@@ -217,7 +220,7 @@ def pieces(value, fmt: str | None = None, name: str = STDIO) -> list | bytes:
 
 def check_name_for(value, output: str) -> None:
     """Refuse an output name that says another kind than ``value``'s."""
-    from ..document import Document
+    from ..model.document import Document
 
     if isinstance(value, Document):
         check_document_name(output)

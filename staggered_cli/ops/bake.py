@@ -8,15 +8,15 @@ from __future__ import annotations
 import numpy as np
 
 from .. import contact_layer, quat
-from ..document import Document
 from ..errors import UsageError, arg
+from ..model.document import Document
+from ..model.sampling import at_times, local_pose, marker_points, reference_channels
 from ..motion import (
     BvhMotion,
     MarkerMotion,
     channels_from_local,
     rate_problem,
 )
-from ..sampling import at_times, local_pose, marker_points, reference_channels
 
 _SAME_VALUE = 1e-9  # channel units (degrees, file units)
 

@@ -15,11 +15,11 @@ from ..contacts import (
     rest_rule,
     warn_never_rested,
 )
-from ..document import Constraint, Document
 from ..errors import UsageError, arg, warn
 from ..ik import two_bone_chain
+from ..model.document import Constraint, Document
+from ..model.timewarp import from_pairs
 from ..motion import BvhMotion
-from ..timewarp import from_pairs
 
 
 def checked_span(doc: Document, joint: str, start: float, end: float) -> tuple[str, float, float]:

@@ -9,11 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import placement, quat
-from ..document import Document, check_pose_index, pose_near
+from .. import quat
 from ..errors import UsageError, arg, warn
-from ..representation import ROTATION, evaluate, evaluate_at, knots_from_poses, pose_arrays, restructure
-from ..signals import reprioritized
+from ..model.document import Document, check_pose_index, pose_near
+from ..model.evaluate import evaluate, evaluate_at
+from ..model.fit import knots_from_poses
+from ..model.kinds import ROTATION
+from ..model.knots import pose_arrays
+from ..model.restructure import restructure
+from ..signals import placement
+from ..signals.probability import reprioritized
 
 #: A pose this close (seconds) to a contact start or end is a pose on that
 #: contact change (half the pose probability's tent width: the cluster's reach).
@@ -160,7 +165,7 @@ def best_subset(
     them) whose spline layer fits the document's motion best.
 
     Every variable keeps its own knots (refinements included): the misfit of
-    a kept set is, in the proxy of :mod:`staggered_cli.placement`, the sum of
+    a kept set is, in the proxy of :mod:`staggered_cli.signals.placement`, the sum of
     each kept pose's own staggered span and of the segments between the last
     knot of one kept pose and the first knot of the next, found by dynamic
     programming over the poses (a segment spans at most a few times the

@@ -17,10 +17,11 @@ from __future__ import annotations
 import numpy as np
 
 from .. import quat
-from ..document import Document, check_pose_index
 from ..errors import DataError, UsageError
-from ..kinds import ops_for
-from ..representation import ROTATION, TRANSLATION, Track, evaluate, pose_arrays
+from ..model.document import Document, check_pose_index
+from ..model.evaluate import evaluate
+from ..model.kinds import ROTATION, TRANSLATION, ops_for
+from ..model.knots import Track, pose_arrays
 
 #: Bounds of geometric edits: beyond them a value is a typo, not a pose.
 MAX_TRANSLATE = 1000.0  # figure heights
@@ -40,7 +41,7 @@ def pose_values(doc: Document, k: int, on: str) -> list[np.ndarray]:
 def average_pose(doc: Document) -> list[np.ndarray]:
     """Per track, the mean over the source clip's frames (rotations: the
     normalized mean of hemisphere-aligned quaternions, the chordal L2 mean)."""
-    from ..variables import dense_variables
+    from ..model.variables import dense_variables
 
     out = []
     for kind, _, _, dense in dense_variables(doc.source):

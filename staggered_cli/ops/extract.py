@@ -3,7 +3,7 @@
 1. Local evidence ``p_i`` and weights ``w_i`` from motion trails
    (:mod:`staggered_cli.signals`); contact constraints
    (:mod:`staggered_cli.contacts`).
-2. Global evidence: a pulse of :data:`~staggered_cli.signals.DEFAULT_PULSE`
+2. Global evidence: a pulse of :data:`~staggered_cli.signals.probability.DEFAULT_PULSE`
    seconds at every contact start and end (not at the clip's ends, where
    nothing changes), weighted like the strongest variable.
 3. ``P(t) = tent(Σ w_i p_i / Σ w_i)`` over the local evidence and the pulses.
@@ -16,7 +16,7 @@
    on the maxima and whose priority ignores the fit): the frames near a
    feature (a peak of the combined evidence, or a contact cluster), chosen
    so that the spline layer alone fits the motion best, measured by the
-   proxy of :mod:`staggered_cli.placement`.  A pose that covers contact
+   proxy of :mod:`staggered_cli.signals.placement`.  A pose that covers contact
    changes costs less, so contacts keep shaping the poses.
 6. Refinements: the contact changes of a pose's cluster put the planted
    leg's knots on its contact frame (:func:`contact_refinements`); other
@@ -27,7 +27,7 @@
    the "closer to its own pose" rule keeps every variable's knots in order.
    Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
    last pose) stays for ``cull --by paper``.
-7. Splines and displacement maps: :func:`staggered_cli.variables.from_motion`.
+7. Splines and displacement maps: :func:`staggered_cli.model.variables.from_motion`.
 
 Significance gate
     The scaled curvature ignores amplitude: a figure swaying by a centimetre
@@ -50,11 +50,13 @@ import bisect
 import numpy as np
 
 from .. import contacts as contact_detection
-from .. import ik, placement, signals
-from ..document import Document
+from .. import ik
 from ..errors import DataError, UsageError, arg
+from ..model.document import Document
+from ..model.variables import dense_variables, fits_by_column, from_motion
 from ..motion import BvhMotion, MarkerMotion, rate_problem
-from ..variables import dense_variables, fits_by_column, from_motion
+from ..signals import placement, probability, trails
+from ..signals.smoothing import DEFAULT_FILTER_WIDTH, DEFAULT_SMOOTHING, tent_filter
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -128,7 +130,7 @@ def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndar
     lo2 = np.maximum(pose_f[:-2] + f, 2 * (f - window) - 1)  # 2τ > lo2
     hi2 = np.minimum(f + pose_f[2:], 2 * (f + window) + 1)  # 2τ < hi2
     for i in range(V):
-        peaks = signals.local_maxima(p[:, i])
+        peaks = probability.local_maxima(p[:, i])
         if len(peaks) == 0:
             continue
         j = np.searchsorted(peaks, f, side="right")  # peaks[j-1] <= f < peaks[j]
@@ -178,7 +180,7 @@ def pose_count(P: np.ndarray, clusters: list[np.ndarray], gate: np.ndarray, forc
     poses.  The larger of the two counts: the maxima of ``P`` (the paper's
     candidates) or the contact clusters.
     """
-    maxima = [int(m) for m in signals.local_maxima(P) if gate[m]]
+    maxima = [int(m) for m in probability.local_maxima(P) if gate[m]]
     on_contact = [int(c[np.argmax(P[c])]) for c in clusters]
     return max(len(_spaced(maxima, P, forced, spacing)), len(_spaced(on_contact, P, forced, spacing)))
 
@@ -188,7 +190,7 @@ def feature_sites(evidence: np.ndarray, reach: int) -> np.ndarray:
     of the combined local evidence (before the tent filter merges them)."""
     T = len(evidence)
     near = np.zeros(T + 1, dtype=int)
-    m = signals.local_maxima(evidence)
+    m = probability.local_maxima(evidence)
     np.add.at(near, np.clip(m - reach, 0, T), 1)
     np.add.at(near, np.clip(m + reach + 1, 0, T), -1)
     return np.flatnonzero(np.cumsum(near)[:T] > 0)
@@ -432,7 +434,7 @@ def extract(
     source_bytes: bytes | None = None,
     contact_joints: tuple[str, ...] | list[str] | None = None,
     smoothing: float | None = None,
-    filter_width: float = signals.DEFAULT_FILTER_WIDTH,
+    filter_width: float = DEFAULT_FILTER_WIDTH,
     refine_window: float = DEFAULT_REFINE_WINDOW,
     min_contact: float = contact_detection.DEFAULT_MIN_CONTACT,
     contact_tolerance: float = contact_detection.DEFAULT_TOLERANCE,
@@ -448,7 +450,7 @@ def extract(
     contact_joints : joint names or marker labels; default feet and toes
         (BVH) or the lowest markers (C3D).
     smoothing : Laplacian smoothing of the local evidence, the standard
-        deviation in seconds (default :data:`signals.DEFAULT_SMOOTHING`).
+        deviation in seconds (default :data:`~staggered_cli.signals.DEFAULT_SMOOTHING`).
     filter_width : tent filter full base width, seconds.
     refine_window : largest refinement, seconds.
     min_contact : shortest contact, seconds.
@@ -465,9 +467,7 @@ def extract(
     ------
     UsageError for a bad option or an unknown contact joint.
     """
-    smoothing = _check(
-        arg("smoothing"), signals.DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
-    )
+    smoothing = _check(arg("smoothing"), DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING)
     filter_width = _check(arg("filter_width"), filter_width, upper=MAX_FILTER_WIDTH)
     refine_window = _check(arg("refine_window"), refine_window, upper=MAX_REFINE_WINDOW)
     min_contact = _check(arg("min_contact"), min_contact, upper=MAX_MIN_CONTACT)
@@ -496,12 +496,12 @@ def extract(
     weights = placement.variable_weights(motion, variables)
     if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
         motion.release_world()
-    ev = signals.local_evidence(motion, smoothing)
+    ev = trails.local_evidence(motion, smoothing)
     events = contact_events(constraints, T, rate, ev.breaks)
     boundaries = np.unique(np.array([f for _, f in events], dtype=int))
-    contact = signals.contact_pulses(boundaries, T, rate, signals.DEFAULT_PULSE)
+    contact = probability.contact_pulses(boundaries, T, rate, probability.DEFAULT_PULSE)
     contact_weight = float(ev.weights.max()) if len(ev.weights) else 0.0
-    P = signals.pose_probability(ev, contact, contact_weight, filter_width)
+    P = probability.pose_probability(ev, contact, contact_weight, filter_width)
 
     spacing = max(int(round(min_spacing * rate)), 1)
     reach = max(int(round(0.5 * filter_width * rate)), 1)
@@ -510,7 +510,7 @@ def extract(
     forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1]).clip(0, max(T - 1, 0)))
     gate = np.ones(T, dtype=bool)
     if significance > 0:
-        gate = signals.tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
+        gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
@@ -527,7 +527,7 @@ def extract(
     pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH)
     pose_t = pose_f * float(motion.frame_time)
 
-    priority = signals.pose_priority(P, pose_f, pose_t)
+    priority = probability.pose_priority(P, pose_f, pose_t)
 
     peaks = refinement_frames(ev.p, pose_f, window)
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
@@ -544,7 +544,7 @@ def extract(
         "significance": significance,
         "min_spacing": min_spacing,
         "contact_joints": list(joints),
-        "contact_pulse": signals.DEFAULT_PULSE,
+        "contact_pulse": probability.DEFAULT_PULSE,
     }
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
     if fits_by_column(motion):  # a long clip's fit makes its rotations a joint at a time

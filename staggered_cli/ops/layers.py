@@ -15,7 +15,7 @@ Transition controls act on the splines and displacement maps themselves:
 
 Both change the stored controls, so later culls and retimes keep them: a
 cull refits only the segments next to the poses it removes, from the motion
-as it is (see :func:`staggered_cli.representation.restructure`).
+as it is (see :func:`staggered_cli.model.restructure.restructure`).
 """
 
 from __future__ import annotations
@@ -25,9 +25,12 @@ from dataclasses import replace
 import numpy as np
 
 from .. import quat
-from ..document import MAX_LAYERS, Document, check_pose_index, check_pose_move, check_time_range
 from ..errors import UsageError, arg
-from ..representation import ROTATION, Track, evaluate_at, offset_layer, sample_times
+from ..model.document import MAX_LAYERS, Document, check_pose_index, check_pose_move, check_time_range
+from ..model.evaluate import evaluate_at
+from ..model.kinds import ROTATION
+from ..model.knots import Track, offset_layer
+from ..model.restructure import sample_times
 
 #: ``--ease`` beyond this is no longer a transition (the controls overshoot).
 MAX_EASE = 10.0

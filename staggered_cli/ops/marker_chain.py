@@ -21,7 +21,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..representation import TRANSLATION, Layer, Track, evaluate_at, fit_layer
+from ..model.document import tree_has_loop
+from ..model.evaluate import evaluate_at
+from ..model.fit import fit_layer
+from ..model.kinds import TRANSLATION
+from ..model.knots import Layer, Track
 
 #: Frames (evenly spread) that judge how rigid a pair of markers is: enough
 #: for the spread of a distance, and (frames x markers²) stays small.
@@ -207,16 +211,3 @@ def with_marker_tree(parameters: dict, labels: tuple[str, ...], parents: np.ndar
     if tree_has_loop(merged):
         merged = new
     return {**parameters, "marker_tree": merged}
-
-
-def tree_has_loop(tree: dict) -> bool:
-    """Whether ``{child: parent}`` leads from some marker back to itself."""
-    for start in tree:
-        seen = {start}
-        j = tree.get(start)
-        while j is not None:
-            if j in seen:
-                return True
-            seen.add(j)
-            j = tree.get(j)
-    return False

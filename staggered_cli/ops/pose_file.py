@@ -16,12 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from .. import quat
-from ..document import Document, require_bvh, variable_layout
 from ..errors import DataError, UsageError, arg, warn
-from ..kinds import ops_for
+from ..model.document import Document, require_bvh, variable_layout
+from ..model.fit import knots_from_poses
+from ..model.kinds import ROTATION, TRANSLATION, ops_for
+from ..model.knots import Layer, Track, pose_arrays
+from ..model.sampling import reference_channels
 from ..motion import BvhMotion, channels_from_local, nominal_rate
-from ..representation import ROTATION, TRANSLATION, Layer, Track, knots_from_poses, pose_arrays
-from ..sampling import reference_channels
 from .edit_pose import joint_mask
 
 #: What counts as a change when a pose file comes back (issue 15).
@@ -344,8 +345,8 @@ def new_document(
     """
     import hashlib
 
-    from ..document import Document as Doc
-    from ..representation import evaluate
+    from ..model.document import Document as Doc
+    from ..model.evaluate import evaluate
 
     if keys.n_frames < 2:
         raise UsageError("new needs at least two key poses (frames)")

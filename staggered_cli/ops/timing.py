@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..document import Document, check_pose_index, check_pose_move, check_time_range
 from ..errors import KnotOrderError, UsageError, arg, warn
-from ..kinds import ROTATION, TRANSLATION
-from ..representation import Track, evaluate_at, knots_from_poses, pose_arrays, restructure, with_knot_times
-from ..signals import reprioritized
-from ..timewarp import warp
+from ..model.document import Document, check_pose_index, check_pose_move, check_time_range
+from ..model.evaluate import evaluate_at
+from ..model.fit import knots_from_poses
+from ..model.kinds import ROTATION, TRANSLATION
+from ..model.knots import Track, pose_arrays
+from ..model.restructure import restructure, with_knot_times
+from ..model.timewarp import warp
+from ..signals.probability import reprioritized
 from . import marker_chain
 from .edit_pose import joint_mask
 

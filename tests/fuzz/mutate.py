@@ -824,14 +824,14 @@ class DocBase:
 
 
 def doc_base(npz: bytes) -> DocBase:
-    from staggered_cli.io.document import document_bytes, parse_document
+    from staggered_cli.io.container import document_bytes, parse_document
 
     manifest, arrays = parse_document(npz, "base")
     return DocBase(manifest, arrays, npz, document_bytes(manifest, arrays, "json"))
 
 
 def _encode(manifest: dict, arrays: dict, fmt: str) -> bytes:
-    from staggered_cli.io.document import document_bytes
+    from staggered_cli.io.container import document_bytes
 
     return document_bytes(manifest, arrays, fmt)
 

@@ -31,7 +31,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     """Print a :class:`~staggered_cli.errors.StaggeredWarning` as the command
     line says it (``staggered: WARNING: ...``, options named as options);
     other warnings as Python would."""
-    from .errors import StaggeredWarning, cli_text
+    from ..errors import StaggeredWarning, cli_text
 
     if isinstance(message, StaggeredWarning) or (isinstance(category, type) and issubclass(category, StaggeredWarning)):
         text = str(message.args[0]) if isinstance(message, Warning) and message.args else str(message)
@@ -48,7 +48,7 @@ def configure_logging(verbose: int, quiet: int) -> None:
 
     The library's warnings (:class:`~staggered_cli.errors.StaggeredWarning`)
     are printed every time they are issued, as one log line each."""
-    from .errors import StaggeredWarning
+    from ..errors import StaggeredWarning
 
     warnings.simplefilter("always", StaggeredWarning)
     warnings.showwarning = _show_warning

@@ -28,9 +28,9 @@ from functools import cached_property
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
 
-from .motion import BvhMotion, MarkerMotion, local_rotations_from_channels, local_translations_from_channels
-from .representation import ROTATION
-from .skeleton import forward_kinematics
+from ..model.kinds import ROTATION
+from ..motion import BvhMotion, MarkerMotion, local_rotations_from_channels, local_translations_from_channels
+from ..skeleton import forward_kinematics
 
 #: The proxy keeps the variables that make up this share of the body's motion.
 KEEP = 0.999

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import quat
+from .. import quat
+from ..motion import BvhMotion, MarkerMotion, rotation_columns
 from .document import Document
-from .motion import BvhMotion, MarkerMotion, rotation_columns
-from .representation import ROTATION, evaluate
+from .evaluate import evaluate
+from .kinds import ROTATION
 
 
 def local_pose(doc: Document, t: np.ndarray, layers: str = "all") -> tuple[np.ndarray, np.ndarray]:

@@ -16,14 +16,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import DataError, UsageError
-from .motion import (
+from ..errors import DataError, UsageError
+from ..motion import (
     BvhMotion,
     MarkerMotion,
     position_columns,
     rotation_columns,
 )
-from .representation import ROTATION, TRANSLATION, Track, pose_arrays
+from .kinds import ROTATION, TRANSLATION
+from .knots import Track, pose_arrays
 from .timewarp import warp_span
 
 #: Most layers a document may stack.
@@ -153,7 +154,7 @@ class Document:
         (``LSHO`` for ``Male:LSHO``), or a body part (``@left-arm``, BVH only);
         ``UsageError`` suggesting the closest names otherwise
         (:func:`staggered_cli.names.resolve`)."""
-        from .names import resolve
+        from ..names import resolve
 
         src = self.source
         if isinstance(src, BvhMotion):
@@ -324,3 +325,16 @@ def document_summary(doc: Document) -> dict:
     else:
         out["markers"] = list(src.labels)
     return out
+
+
+def tree_has_loop(tree: dict) -> bool:
+    """Whether ``{child: parent}`` leads from some marker back to itself."""
+    for start in tree:
+        seen = {start}
+        j = tree.get(start)
+        while j is not None:
+            if j in seen:
+                return True
+            seen.add(j)
+            j = tree.get(j)
+    return False

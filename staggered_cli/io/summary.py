@@ -1,4 +1,5 @@
-"""What a BVH, a C3D or a document holds, as one JSON-able dict (``info``).
+"""What a BVH, a C3D or a document holds, as one JSON-able dict (``info``):
+the file's layout included (the frame time as written), which is io's to read.
 
 Times in seconds, lengths in file units; derived floats are rounded to
 six decimals so that golden files do not hang on the last bit.
@@ -64,9 +65,9 @@ def c3d_summary(motion) -> dict[str, Any]:
 
 
 def document_info(doc) -> dict[str, Any]:
-    """Summary of a :class:`~staggered_cli.document.Document` (JSON-able;
+    """Summary of a :class:`~staggered_cli.model.document.Document` (JSON-able;
     includes ``frames`` and ``frame_time``)."""
-    from ..document import document_summary
+    from ..model.document import document_summary
 
     return {"kind": "document", **document_summary(doc)}
 
@@ -75,8 +76,8 @@ def summarize(value, name: str | None = None) -> dict[str, Any]:
     """The summary dict of a BvhMotion, MarkerMotion or Document, as
     ``info --json`` prints it; ``file`` is ``name`` (default: the clip's own
     base name, or the document's source name)."""
-    from ..document import Document
     from ..errors import UsageError, arg
+    from ..model.document import Document
     from ..motion import BvhMotion, MarkerMotion
 
     if isinstance(value, BvhMotion):

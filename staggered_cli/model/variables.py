@@ -1,7 +1,7 @@
 """Dense motion as control variables, and a document built from it.
 
 A clip's variables are its joints' local rotations and translations (BVH,
-in the order of :func:`staggered_cli.document.variable_layout`) or its
+in the order of :func:`staggered_cli.model.document.variable_layout`) or its
 markers' positions (C3D, gaps filled); :func:`from_motion` fits splines and
 displacement maps to them at chosen pose times and refinements.
 """
@@ -12,10 +12,11 @@ import hashlib
 
 import numpy as np
 
+from ..errors import UsageError
+from ..motion import BvhMotion, MarkerMotion
 from .document import Constraint, Document, seconds, variable_layout
-from .errors import UsageError
-from .motion import BvhMotion, MarkerMotion
-from .representation import ROTATION, build_track
+from .fit import build_track
+from .kinds import ROTATION
 
 
 def dense_variables(

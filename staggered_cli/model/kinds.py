@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import quat, splines
+from .. import quat
+from . import bezier, rotation_spline
 
 TRANSLATION = "translation"
 ROTATION = "rotation"
@@ -35,7 +36,7 @@ class KindOps:
     ``oplus(a, b)``, ``ominus(c, a)``, ``scale(d, w)`` (``w`` a float or an
     array broadcasting against the leading axes), ``interpolate(a, b, u)``
     (``u`` against the leading axes), ``identity(shape)`` and ``dim``; and
-    the kind's cubic segments (:mod:`splines`): ``spline_at(p0, a, b, p3,
+    the kind's cubic segments (:mod:`.bezier`, :mod:`.rotation_spline`): ``spline_at(p0, a, b, p3,
     seg, u)`` evaluates segments ``seg`` at ``u``, ``linear_controls(p0, p3)``
     gives the inner controls of the uniform-speed segment; ``normalize(v)``
     returns values to the kind's set after arithmetic (unit quaternions; a
@@ -99,8 +100,8 @@ TRANSLATION_OPS = KindOps(
     interpolate=_t_interpolate,
     identity=_t_identity,
     normalize=lambda v: v,
-    spline_at=splines.bezier_eval_at,
-    linear_controls=splines.default_translation_tangents,
+    spline_at=bezier.bezier_eval_at,
+    linear_controls=bezier.default_translation_tangents,
 )
 
 ROTATION_OPS = KindOps(
@@ -112,8 +113,8 @@ ROTATION_OPS = KindOps(
     interpolate=_r_interpolate,
     identity=quat.identity,
     normalize=quat.normalize,
-    spline_at=splines.rotation_eval_at,
-    linear_controls=splines.default_rotation_tangents,
+    spline_at=rotation_spline.rotation_eval_at,
+    linear_controls=rotation_spline.default_rotation_tangents,
 )
 
 _OPS = {TRANSLATION: TRANSLATION_OPS, ROTATION: ROTATION_OPS}
