@@ -254,7 +254,7 @@ def _sides(names: Sequence[str]) -> list[str]:
 
 
 def _up(points: np.ndarray, size: float) -> np.ndarray:
-    from .contacts import up_direction
+    from .contacts.detect import up_direction
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN frames of a C3D with gaps

@@ -256,7 +256,7 @@ def test_a_bake_by_blocks_of_frames_is_the_bake_of_the_whole_pose(monkeypatch, e
     the whole-clip path (the one the contact layer needs), and a block that
     finds a disturbed contact hands over to it."""
     import staggered_cli.ops.bake as B
-    from staggered_cli import contact_layer
+    from staggered_cli.contacts import layer as contact_layer
     from staggered_cli.io.bvh import bvh_bytes
 
     doc = dev_document("cmu_02_01_walk.bvh")

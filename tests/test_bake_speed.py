@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from staggered_cli import contact_layer
+from staggered_cli.contacts import layer as contact_layer
 from staggered_cli.io import bvh
 from staggered_cli.io.bvh import bvh_bytes, parse_bvh, read_bvh
 from staggered_cli.model.evaluate import evaluate, evaluate_at

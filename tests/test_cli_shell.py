@@ -20,8 +20,8 @@ from staggered_cli.cli import options
 from staggered_cli.cli.main import COMMANDS, EXIT_BROKEN_PIPE, EXIT_INTERRUPTED, StaggeredGroup, cli
 from staggered_cli.errors import DataError, StaggeredError, UsageError
 from staggered_cli.io import files
-from staggered_cli.io.container import document_bytes, parse_document
 from staggered_cli.io import summary as info_ops
+from staggered_cli.io.container import document_bytes, parse_document
 
 ROOT = Path(__file__).resolve().parents[1]
 MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"

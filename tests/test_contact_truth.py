@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from staggered_cli.contacts import up_direction
+from staggered_cli.contacts.detect import up_direction
+from staggered_cli.model.sampling import at_times
 from staggered_cli.ops import cull, timing
 from staggered_cli.ops import edit_pose as E
 from staggered_cli.ops.bake import bake
-from staggered_cli.model.sampling import at_times
 from staggered_cli.skeleton import body_joints
 
 from .conftest import dev_document, dev_motion, staggered_warnings

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 
-from staggered_cli.contacts import detect_contacts
+from staggered_cli.contacts.detect import detect_contacts
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.ops import cull, timing
 
@@ -49,7 +49,7 @@ def test_the_up_direction_of_some_columns_is_that_of_their_copy():
     """``up_direction`` of the body's columns, measured without a copy of
     them (its median on its own copy of one coordinate), is that of the
     copied columns; the caller's points are left as they were."""
-    from staggered_cli.contacts import up_direction
+    from staggered_cli.contacts.detect import up_direction
     from staggered_cli.skeleton import body_joints
 
     from .conftest import dev_motion
@@ -157,7 +157,7 @@ def _with_box(m, labels, carrier, spot, resting=0.6):
     or the pelvis of a lower-body set)."""
     from dataclasses import replace
 
-    from staggered_cli.contacts import up_direction
+    from staggered_cli.contacts.detect import up_direction
 
     P, H = np.asarray(m.points), m.figure_height()
     up = up_direction(P, H)
@@ -195,7 +195,7 @@ def test_default_contact_markers_are_the_feet_not_a_carried_box():
     C3D."""
     from dataclasses import replace
 
-    from staggered_cli.contacts import _lowest_of, _median_height, contact_joints, up_direction
+    from staggered_cli.contacts.detect import _lowest_of, _median_height, contact_joints, up_direction
 
     from .conftest import dev_motion
 

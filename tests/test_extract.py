@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.ndimage import gaussian_filter1d
 
-from staggered_cli import contacts as C
+from staggered_cli.contacts import detect as C
 from staggered_cli.errors import UsageError
 from staggered_cli.io.container import document_bytes
 from staggered_cli.io.schema import to_parts

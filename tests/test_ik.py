@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from staggered_cli import quat
+from staggered_cli.contacts.constraint import Constraint
+from staggered_cli.contacts.ik import blend_weight, ik_layer, two_bone_chain
 from staggered_cli.errors import UsageError
-from staggered_cli.ik import blend_weight, ik_layer, two_bone_chain
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.schema import from_parts, to_parts
-from staggered_cli.model.document import Constraint
 from staggered_cli.ops.bake import bake
 from staggered_cli.skeleton import forward_kinematics
 

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from staggered_cli.cli.main import cli
-from staggered_cli.contacts import contact_joints
+from staggered_cli.contacts.detect import contact_joints
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import read_bvh
 from staggered_cli.io.c3d import read_c3d

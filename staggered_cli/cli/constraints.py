@@ -88,7 +88,7 @@ def constraints(
     """
     from dataclasses import replace
 
-    from ..model.document import Constraint
+    from ..contacts.constraint import Constraint
     from ..ops.constraints import checked_span, redetect
 
     editing = bool(adds or removes or detect)

@@ -15,8 +15,9 @@ import re
 
 import numpy as np
 
+from ..contacts.constraint import Constraint
 from ..errors import DataError
-from ..model.document import MAX_LAYERS, Constraint, Document, tree_has_loop, variable_layout
+from ..model.document import MAX_LAYERS, Document, tree_has_loop, variable_layout
 from ..model.kinds import ROTATION, TRANSLATION
 from ..model.knots import Knots, Layer, Track
 from ..motion import BvhMotion, MarkerMotion, frame_time_problem, rate_problem

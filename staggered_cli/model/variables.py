@@ -12,9 +12,10 @@ import hashlib
 
 import numpy as np
 
+from ..contacts.constraint import Constraint
 from ..errors import UsageError
 from ..motion import BvhMotion, MarkerMotion
-from .document import Constraint, Document, seconds, variable_layout
+from .document import Document, seconds, variable_layout
 from .fit import build_track
 from .kinds import ROTATION
 

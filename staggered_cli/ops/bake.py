@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import contact_layer, quat
+from .. import quat
+from ..contacts import layer as contact_layer
 from ..errors import UsageError, arg
 from ..model.document import Document
 from ..model.sampling import at_times, local_pose, marker_points, reference_channels

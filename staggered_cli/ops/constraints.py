@@ -7,7 +7,8 @@ re-detected constraint is, is decided here.  Pure functions of the document.
 
 from __future__ import annotations
 
-from ..contacts import (
+from ..contacts.constraint import Constraint
+from ..contacts.detect import (
     DEFAULT_MIN_CONTACT,
     DEFAULT_TOLERANCE,
     contact_joints,
@@ -15,9 +16,9 @@ from ..contacts import (
     rest_rule,
     warn_never_rested,
 )
+from ..contacts.ik import two_bone_chain
 from ..errors import UsageError, arg, warn
-from ..ik import two_bone_chain
-from ..model.document import Constraint, Document
+from ..model.document import Document
 from ..model.timewarp import from_pairs
 from ..motion import BvhMotion
 

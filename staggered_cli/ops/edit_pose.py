@@ -253,7 +253,7 @@ def place_joint(doc: Document) -> int:
 
 def up_axis(doc: Document) -> np.ndarray:
     """Unit up vector (3,) of a BVH document's figure (see :mod:`..contacts`)."""
-    from ..contacts import up_direction
+    from ..contacts.detect import up_direction
 
     return up_direction(doc.source.world_positions(), doc.source.figure_height())
 

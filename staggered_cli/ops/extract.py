@@ -49,8 +49,8 @@ import bisect
 
 import numpy as np
 
-from .. import contacts as contact_detection
-from .. import ik
+from ..contacts import detect as contact_detection
+from ..contacts import ik
 from ..errors import DataError, UsageError, arg
 from ..model.document import Document
 from ..model.variables import dense_variables, fits_by_column, from_motion

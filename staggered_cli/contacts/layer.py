@@ -28,14 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import quat
-from .contacts import up_direction
-from .errors import UsageError, arg, warn
+from .. import quat
+from ..errors import UsageError, arg, warn
+from ..model.document import Document
+from ..model.sampling import at_times
+from ..motion import local_rotations_from_channels, local_translations_from_channels
+from ..skeleton import body_joints, forward_kinematics
+from .detect import up_direction
 from .ik import ik_layer, two_bone_chain
-from .model.document import Document
-from .model.sampling import at_times
-from .motion import local_rotations_from_channels, local_translations_from_channels
-from .skeleton import body_joints, forward_kinematics
 
 _UNDISTURBED = 1e-6  # of figure height
 _RESAMPLED = 1e-3  # of figure height, when baking at another rate

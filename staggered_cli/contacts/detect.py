@@ -52,12 +52,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import quat
-from .errors import UsageError, arg, warn
-from .model.document import Constraint
-from .motion import BvhMotion, MarkerMotion
-from .names import resolve
-from .skeleton import body_joints
+from .. import quat
+from ..errors import UsageError, arg, warn
+from ..motion import BvhMotion, MarkerMotion
+from ..names import resolve
+from ..skeleton import body_joints
+from .constraint import Constraint
 
 #: Default minimum contact duration, seconds (the paper's 0.25 s misses running stance).
 DEFAULT_MIN_CONTACT = 0.1
@@ -238,7 +238,7 @@ def body_markers(labels, points: np.ndarray) -> np.ndarray:
 
     All markers when these would leave none.
     """
-    from .names import base_name
+    from ..names import base_name
 
     labels = list(labels)
     idx = np.arange(len(labels))
@@ -291,7 +291,7 @@ BODY_REACH = 5.0
 
 def _has_chain(skeleton, j: int) -> bool:
     """Whether bake's IK can keep joint ``j`` planted (a two-bone chain above it)."""
-    from .errors import UsageError
+    from ..errors import UsageError
     from .ik import two_bone_chain
 
     try:

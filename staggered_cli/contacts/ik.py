@@ -93,9 +93,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import quat
-from .errors import UsageError
-from .skeleton import Skeleton
+from .. import quat
+from ..errors import UsageError
+from ..skeleton import Skeleton
 
 #: A last bone shorter than this fraction of the bone above makes its joint a tip.
 TIP_RATIO = 0.5
