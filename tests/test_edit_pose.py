@@ -130,9 +130,12 @@ def test_exaggerate_keeps_the_root_in_place(walk_doc):
     _, tr0 = sampling.local_pose(doc, t)
     _, tr1 = sampling.local_pose(ex, t)
     np.testing.assert_allclose(tr1, tr0, atol=1e-9)
-    # naming the root's joint scales its translation too
+    # naming the root's joint alone keeps its place; with root=True (--root) its translation is scaled too
+    named = E.edit_pose(doc, k, exaggerate=1.5, joints=["Hips"])
+    _, tr2 = sampling.local_pose(named, t)
+    np.testing.assert_allclose(tr2, tr0, atol=1e-9)
     for name in (root, "Hips"):
-        named = E.edit_pose(doc, k, exaggerate=1.5, joints=[name])
+        named = E.edit_pose(doc, k, exaggerate=1.5, joints=[name], root=True)
         vals = E.pose_values(named, k, "true")
         ref = E.average_pose(doc)
         for tr, b, a, r in zip(doc.tracks, before, vals, ref, strict=True):

@@ -35,7 +35,12 @@ from .options import force_option, format_option, input_argument, on_option, out
 @click.option(
     "--exaggerate",
     metavar="W",
-    help="Scale the pose's difference from a reference pose by W (1 = unchanged; BVH: rotations only unless --joints).",
+    help=(
+        "Scale the pose's difference from a reference pose by W (1 = unchanged). BVH: joint rotations only; the "
+        "figure keeps its place and heading (the root's translation and its turn about the up axis), its tilt is "
+        "scaled. C3D: the marker shape about the body's centre, each limb segment within the lengths the capture "
+        "gives it, planted markers held."
+    ),
 )
 @click.option(
     "--relative-to",
@@ -58,7 +63,10 @@ from .options import force_option, format_option, input_argument, on_option, out
 @click.option(
     "--root",
     is_flag=True,
-    help="With --from-bvh: take the root's place and heading from the file too (default: keep the document's).",
+    help=(
+        "With --from-bvh: take the root's place and heading from the file too; with --exaggerate: scale them too "
+        "(default: keep the document's)."
+    ),
 )
 @click.option(
     "--all",
@@ -123,8 +131,8 @@ def edit_pose(
         raise click.UsageError("Missing option '--pose' (or use --from-bvh FILE --all)")
     if (from_bvh is None) != (frame is None):
         raise click.UsageError("--from-bvh and --frame go together")
-    if root and from_bvh is None:
-        raise click.UsageError("--root goes with --from-bvh")
+    if root and from_bvh is None and w is None:
+        raise click.UsageError("--root goes with --from-bvh or --exaggerate")
     if not (rot or tra or w is not None or x is not None or from_bvh or new_time is not None or shift is not None):
         raise click.UsageError(
             "nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --ease, --time or --shift"

@@ -120,18 +120,20 @@ def joint_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[n
     return [np.isin(tr.targets, chosen) for tr in doc.tracks]
 
 
-def exaggeration_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[np.ndarray]:
+def exaggeration_mask(doc: Document, joints: list[str] | None, subtree: bool, root: bool = False) -> list[np.ndarray]:
     """Per track, a (V,) mask of the variables ``--exaggerate`` scales.
 
     Exaggeration changes a pose's shape, not its place: in a BVH document
     only rotations are scaled (scaling the root translation's difference
     from the clip's mean would move the character across the room), unless
-    ``joints`` names joints explicitly, in which case every variable of the
-    chosen joints is, translations included.  In a C3D document every marker
-    (a translation) is scaled, within ``joints`` when given.
+    ``root``, in which case every variable is, translations included
+    (within ``joints`` when given).  The heading of the BVH's place joint is
+    kept apart from this mask (see :func:`_heading_kept`).  In a C3D
+    document every marker (a translation) is scaled, within ``joints`` when
+    given.
     """
     mask = joint_mask(doc, joints, subtree)
-    if doc.kind != "bvh" or joints:
+    if doc.kind != "bvh" or root:
         return mask
     return [m & (tr.kind == ROTATION) for tr, m in zip(doc.tracks, mask, strict=True)]
 
@@ -162,12 +164,17 @@ def edit_pose(
         paper's ``v ⊕ w_r(v ⊖ v_ref)`` with ``w_r = W - 1``), relative to
         ``relative_to``: ``'prev'``, ``'next'``, ``'average'`` (the mean pose
         of the source clip) or a pose index.  In a BVH document only the
-        rotations are scaled unless ``joints`` is given (see
-        :func:`exaggeration_mask`).  A rotation's scaled difference wraps
-        past a half turn, so W then 1/W restores differences under 180°/max(W, 1).
+        rotations are scaled unless ``root`` (see :func:`exaggeration_mask`).
+        A rotation's scaled difference wraps past a half turn, so W then 1/W
+        restores differences under 180°/max(W, 1).
+        A BVH pose keeps its place and heading unless ``root`` (see
+        :func:`_heading_kept`); a C3D pose keeps its limbs' lengths within
+        the capture's own (see :func:`_segments_kept`).
     values : per track (V, D) target values (e.g. from another BVH), applied
         where ``joints`` allows.  The pose keeps its place and heading (see
         :func:`_keep_place`) unless ``root``.
+    root : BVH: exaggerate (or take from ``values``) the place joint's
+        translation and heading and the joints above it too.
     joints, subtree : restrict exaggeration and ``values`` to part of the body.
     layer : edit pose ``k`` of this layer (0: the base layer's staggered
         poses).  On a layer above the base the pose is what the whole stack
@@ -204,18 +211,20 @@ def edit_pose(
         check_exaggerate(exaggerate)
         r = _reference_pose(relative_to, k, len(times))
         cur = values_at(doc, k)
-        mask = exaggeration_mask(doc, joints, subtree)
+        mask = exaggeration_mask(doc, joints, subtree, root)
         if doc.kind == "c3d":  # the average of a marker set is its own (a mean shape)
             cur, ref = _marker_shapes(doc, times, k, r, cur, None if r is None else values_at(doc, r), mask[0])
         else:
             ref = average_pose(doc) if r is None else values_at(doc, r)
         deltas = []
-        for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
+        for tr, c, v, m in zip(doc.tracks, cur, ref, mask, strict=True):
             op = ops_for(tr.kind)
-            target = op.oplus(r, op.scale(op.ominus(c, r), exaggerate))
+            target = op.oplus(v, op.scale(op.ominus(c, v), exaggerate))
             d = op.ominus(target, c)
             d[~m] = op.identity()
             deltas.append(d)
+        if doc.kind == "bvh" and not root:
+            deltas = _heading_kept(doc, cur, None if r is None else ref, exaggerate, deltas, mask)
         if doc.kind == "c3d" and not joints:
             deltas = [_planted_held(doc, times, k, deltas[0])]
         doc = apply(doc, deltas)
@@ -251,10 +260,15 @@ def place_joint(doc: Document) -> int:
 
 
 def up_axis(doc: Document) -> np.ndarray:
-    """Unit up vector (3,) of a BVH document's figure (see :mod:`..contacts`)."""
+    """Unit up vector (3,) of a BVH document's figure, from the body's
+    joints as contact detection finds it (see :mod:`..contacts`): a still
+    joint above the body (Bandai's ``joint_Root`` at the origin) widens
+    every frame of a walk along its path (the Bandai walk's up came out -Z)."""
     from ..contacts import up_direction
+    from ..skeleton import body_joints
 
-    return up_direction(doc.source.world_positions(), doc.source.figure_height())
+    src = doc.source
+    return up_direction(src.world_positions(), src.figure_height(), body_joints(src.skeleton))
 
 
 def heading_split(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -265,6 +279,111 @@ def heading_split(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray
     n = np.linalg.norm(twist, axis=-1, keepdims=True)
     twist = np.where(n > 1e-12, twist / np.maximum(n, 1e-300), quat.identity(q.shape[:-1]))
     return twist, quat.mul(quat.conj(twist), q)
+
+
+def _place_chain(doc: Document) -> list[int]:
+    """The :func:`place_joint` and its ancestors, up to the root."""
+    parents = doc.source.skeleton.parents
+    chain = [place_joint(doc)]
+    while parents[chain[-1]] >= 0:
+        chain.append(int(parents[chain[-1]]))
+    return chain
+
+
+def _rotation_of(doc: Document, j: int) -> tuple[int, int] | None:
+    """(track, variable) of joint ``j``'s rotation, None when it has none."""
+    for ti, tr in enumerate(doc.tracks):
+        if tr.kind == ROTATION and j in tr.targets:
+            return ti, int(np.flatnonzero(tr.targets == j)[0])
+    return None
+
+
+def _tilted_up(q: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Unit vectors (..., 3): where the rest of :func:`heading_split` of
+    ``q`` (its tilt, a turn about a horizontal axis) takes ``up``.  The tilt
+    is the shortest turn from ``up`` to that vector, so the vector alone
+    says it, with no heading in it."""
+    return quat.mul_vec(heading_split(q, up)[1], np.broadcast_to(up, np.shape(q)[:-1] + (3,)))
+
+
+def _tilt_towards(up: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The shortest turn (4,) that takes ``up`` to the unit vector ``d``."""
+    q = np.concatenate([[1.0 + float(up @ d)], np.cross(up, d)])
+    n = float(np.linalg.norm(q))
+    if n < 1e-9:  # upside down: half a turn about a horizontal axis
+        side = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+        return np.concatenate([[0.0], side / np.linalg.norm(side)])
+    return q / n
+
+
+def _scaled_direction(ref: np.ndarray, cur: np.ndarray, w: float) -> np.ndarray:
+    """The unit vector on the great circle from ``ref`` through ``cur`` at
+    ``w`` times their angle from ``ref`` (``w = 1``: ``cur``)."""
+    axis = np.cross(ref, cur)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-12:
+        return cur
+    angle = float(np.arctan2(s, float(ref @ cur)))
+    return quat.mul_vec(quat.exp(axis / s * (w * angle)), ref)
+
+
+def _heading_kept(
+    doc: Document,
+    cur: list[np.ndarray],
+    ref: list[np.ndarray] | None,
+    w: float,
+    deltas: list[np.ndarray],
+    mask: list[np.ndarray],
+) -> list[np.ndarray]:
+    """BVH: the changes of an exaggeration by ``w`` of pose values ``cur``
+    against ``ref`` (a pose's values; None: the source clip's average) that
+    keep the figure's place and heading, as ``--from-bvh`` does.
+
+    The joints above the :func:`place_joint` keep their values and the
+    chain's translations stay.  The place joint's world rotation is split
+    into heading (about the up axis) and tilt (:func:`heading_split`); the
+    tilt alone is exaggerated, in the figure's own facing frame: the
+    direction the tilt takes the up axis to turns away from the reference's
+    (the average: the mean of those directions over the source's frames,
+    each without its own heading, since the mean of opposite headings means
+    nothing) by ``w`` times their angle, and the pose's heading is put back.
+    """
+    chain = _place_chain(doc)
+    place, above = chain[0], chain[1:]
+    out = [d.copy() for d in deltas]
+    for ti, tr in enumerate(doc.tracks):  # translations and the joints above: kept
+        keep = np.isin(tr.targets, above) | ((tr.kind == TRANSLATION) & np.isin(tr.targets, chain))
+        out[ti][keep] = ops_for(tr.kind).identity()
+    at = _rotation_of(doc, place)
+    if at is None or not mask[at[0]][at[1]]:
+        return out
+    ti, i = at
+    up = up_axis(doc)
+
+    def world(vals: list[np.ndarray]) -> np.ndarray:
+        g = quat.identity()
+        for j in reversed(chain):
+            where = _rotation_of(doc, j)
+            if where is not None:
+                g = quat.mul(g, vals[where[0]][where[1]])
+        return g
+
+    g_cur = world(cur)
+    if ref is None:
+        rot = doc.source.local_rotations()
+        g = quat.identity((rot.shape[0],))
+        for j in reversed(chain):
+            g = quat.mul(g, rot[:, j])
+        mean = _tilted_up(g, up).mean(axis=0)
+        d_ref = mean / max(float(np.linalg.norm(mean)), 1e-12)
+    else:
+        d_ref = _tilted_up(world(ref), up)
+    heading, _ = heading_split(g_cur, up)
+    tilt = _tilt_towards(up, _scaled_direction(d_ref, _tilted_up(g_cur, up), w))
+    parent = quat.mul(g_cur, quat.conj(cur[ti][i]))  # the joints above, as they are
+    local = quat.mul(quat.conj(parent), quat.mul(heading, tilt))
+    out[ti][i] = quat.normalize(quat.ominus(quat.hemisphere(local, cur[ti][i]), cur[ti][i]))
+    return out
 
 
 def _keep_place(doc: Document, cur: list[np.ndarray], values: list[np.ndarray]) -> list[np.ndarray]:
