@@ -177,8 +177,13 @@ def centroid_moved(a: np.ndarray, b: np.ndarray) -> float:
     [
         (EB015, "average", 0.01),  # before: 48 %
         (EB015, "prev", 0.01),  # before: 2.9 %
-        (CMU_C3D, "average", 0.01),  # before: 28 %
-        (CMU_C3D, "prev", 0.01),  # before: 3.0 %
+        # the breakdance's upper body turns about the held stance (planted
+        # feet to the body's centre, as they were) with its limbs at their
+        # lengths (test_exaggerate_truth): the centroid follows it (3.3 %,
+        # 5.6 % against the previous pose); with the limbs stretched instead
+        # it stayed within 0.24 %
+        (CMU_C3D, "average", 0.04),  # before the shape was scaled about the centre: 28 %
+        (CMU_C3D, "prev", 0.06),  # before: 3.0 %
         (BTS, "average", 0.01),  # before: 97 %
         (BTS, "prev", 0.01),  # before: 7.3 %
     ],
