@@ -185,3 +185,22 @@ def test_c3d_exaggerate_keeps_every_segment_within_its_own_range(name, relative_
         held = E._planted(doc, doc.poses_of(0), k)
         f = frame[k]
         np.testing.assert_allclose(out[f, held], plain[f, held], atol=1e-6 * size)
+
+
+def test_root_goes_with_exaggerate_on_a_bvh_only(tmp_path):
+    from click.testing import CliRunner
+
+    from staggered_cli.cli.main import cli
+
+    from .conftest import document_file, one_line_error
+
+    bvh = document_file(dev_document("cmu_02_01_walk.bvh"), tmp_path / "walk.stag")
+    c3d = document_file(dev_document(C3D[0]), tmp_path / "eb015.stag")
+    run = CliRunner().invoke
+    r = run(cli, ["edit-pose", str(bvh), "--pose", "3", "--exaggerate", "1.5", "--root", "-o", "-", "--format", "json"])
+    assert r.exit_code == 0, r.stderr
+    one_line_error(
+        run(cli, ["edit-pose", str(bvh), "--pose", "3", "--rotate", "Hips=0,5,0", "--root"]), 2, "--root goes with"
+    )
+    r = run(cli, ["edit-pose", str(c3d), "--pose", "3", "--exaggerate", "1.5", "--root", "-o", "-"])
+    one_line_error(r, 2, "--root is for a BVH")

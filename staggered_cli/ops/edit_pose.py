@@ -209,6 +209,8 @@ def edit_pose(
         doc = apply(doc, offsets(doc, rotate, translate))
     if exaggerate is not None:
         check_exaggerate(exaggerate)
+        if root and doc.kind != "bvh":
+            raise UsageError("--root is for a BVH's root; a C3D document's markers have none")
         r = _reference_pose(relative_to, k, len(times))
         cur = values_at(doc, k)
         mask = exaggeration_mask(doc, joints, subtree, root)
