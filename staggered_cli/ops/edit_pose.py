@@ -551,11 +551,11 @@ def _segments_kept(doc: Document, before: Document, fixed: np.ndarray, planted: 
     t = np.unique(np.concatenate([frame_t, track.knot_t]))
     V = track.n_vars
 
-    def sampled(tr: Track) -> np.ndarray:
-        v = evaluate_at(tr, np.repeat(np.arange(V), len(t)), np.tile(t, V), depth=1)
+    def sampled(tr: Track, depth: int | None = None) -> np.ndarray:
+        v = evaluate_at(tr, np.repeat(np.arange(V), len(t)), np.tile(t, V), depth=depth)
         return v.reshape(V, len(t), 3).transpose(1, 0, 2)
 
-    values = sampled(track)
+    values = sampled(track)  # what bake gives: every layer (the base refitted below carries the change)
     hold = np.zeros(V, dtype=bool)
     if planted.any():
         centre = marker_chain.centre_marker(pts)
@@ -568,7 +568,9 @@ def _segments_kept(doc: Document, before: Document, fixed: np.ndarray, planted: 
     out = marker_chain.keep_segments(values, parents, fixed | hold, lo, hi, seen)
     start = sampled(track)
     changed = np.any(out != start, axis=(0, 2))
-    track = marker_chain.refit_markers(track, frame_t, t, out, changed)
+    if changed.any():  # markers are sums of their layers: the base takes the difference
+        base = sampled(track, depth=1)
+        track = marker_chain.refit_markers(track, frame_t, t, base + (out - start), changed)
     return doc.with_tracks((track,) + tuple(doc.tracks[1:]))
 
 

@@ -329,44 +329,47 @@ def keep_segments(
             out_.append(via[out_[-1]])
         return out_
 
-    for a, b in meetings:
-        if a not in via and b not in via:
-            continue  # both fixed (or starts): the capture's own length there
-        path = back(a)[::-1] + back(b)
-        lengths = [rng(u, v) for u, v in zip(path[:-1], path[1:], strict=True)]
-        if not all(np.isfinite(r[0]) for r in lengths):
-            continue
-        ra = rng(a, b)
-        gap = np.linalg.norm(out[:, b] - out[:, a], axis=1)
-        wrong = seen[:, a] & seen[:, b] & ((gap < ra[0]) | (gap > ra[1]))
-        if not wrong.any():
-            continue
-        on_path = set(path)
-        at = path.index(a)
-        pattern = seen[:, path]
-        for pat in np.unique(pattern[wrong], axis=0):  # the markers of the path seen, frames alike
-            act = wrong & np.all(pattern == pat, axis=1)
-            lo_, hi_ = at, at + 1  # the stretch around the meeting that is seen
-            while lo_ > 0 and pat[lo_ - 1]:
-                lo_ -= 1
-            while hi_ < len(path) - 1 and pat[hi_ + 1]:
-                hi_ += 1
-            part = path[lo_ : hi_ + 1]
-            before = out[act][:, part]
-            placed = _chain_between(before, np.array(lengths[lo_:hi_]), lo_ == 0, hi_ == len(path) - 1)
-            shift = placed - before
-            for n, node in enumerate(part):
-                out[act, node] = placed[:, n]
-                stack = [c for c in below.get(node, []) if c not in on_path]
-                while stack:  # what hangs from a marker of the path moves with it
-                    c = stack.pop()
-                    out[act, c] += shift[:, n]
-                    stack.extend(below.get(c, []))
+    for _ in range(_MEETING_ROUNDS):  # a chain solved later can move a marker of one solved before
+        for a, b in meetings:
+            if a not in via and b not in via:
+                continue  # both fixed (or starts): the capture's own length there
+            path = back(a)[::-1] + back(b)
+            lengths = [rng(u, v) for u, v in zip(path[:-1], path[1:], strict=True)]
+            if not all(np.isfinite(r[0]) for r in lengths):
+                continue
+            ra = rng(a, b)
+            gap = np.linalg.norm(out[:, b] - out[:, a], axis=1)
+            wrong = seen[:, a] & seen[:, b] & ((gap < ra[0] * (1 - 1e-9)) | (gap > ra[1] * (1 + 1e-9)))
+            if not wrong.any():
+                continue
+            on_path = set(path)
+            at = path.index(a)
+            pattern = seen[:, path]
+            for pat in np.unique(pattern[wrong], axis=0):  # the markers of the path seen, frames alike
+                act = wrong & np.all(pattern == pat, axis=1)
+                lo_, hi_ = at, at + 1  # the stretch around the meeting that is seen
+                while lo_ > 0 and pat[lo_ - 1]:
+                    lo_ -= 1
+                while hi_ < len(path) - 1 and pat[hi_ + 1]:
+                    hi_ += 1
+                part = path[lo_ : hi_ + 1]
+                before = out[act][:, part]
+                placed = _chain_between(before, np.array(lengths[lo_:hi_]), lo_ == 0, hi_ == len(path) - 1)
+                shift = placed - before
+                for n, node in enumerate(part):
+                    out[act, node] = placed[:, n]
+                    stack = [c for c in below.get(node, []) if c not in on_path]
+                    while stack:  # what hangs from a marker of the path moves with it
+                        c = stack.pop()
+                        out[act, c] += shift[:, n]
+                        stack.extend(below.get(c, []))
     return out
 
 
 #: Passes of :func:`_chain_between` at most (each a forward and a backward sweep).
 _CHAIN_PASSES = 50
+#: Rounds over the meetings of :func:`keep_segments` at most.
+_MEETING_ROUNDS = 4
 
 
 def _chain_between(p: np.ndarray, ranges: np.ndarray, first: bool = True, last: bool = True) -> np.ndarray:
