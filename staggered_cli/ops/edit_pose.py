@@ -497,7 +497,7 @@ def _planted_held(doc: Document, times: np.ndarray, k: int, delta: np.ndarray) -
     if not free.any():
         return delta
     out = delta.copy()
-    out[~planted] += delta[seen & planted].sum(axis=0) / free.sum()
+    out[free] += delta[seen & planted].sum(axis=0) / free.sum()  # a marker in a gap at the pose stays
     out[planted] = 0.0
     return out
 
