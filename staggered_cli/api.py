@@ -497,8 +497,8 @@ def _pose_file(from_bvh) -> tuple[BvhMotion, str]:
     """The BVH ``from_bvh`` names (a path) or is, and its name for messages."""
     from .motion import BvhMotion
 
-    if isinstance(from_bvh, BvhMotion):
-        return from_bvh, from_bvh.name
+    if not isinstance(from_bvh, str | os.PathLike):  # a clip read already: ops says what it must be
+        return from_bvh, getattr(from_bvh, "name", "")
     from .io.files import display_name
     from .io.formats import read as io_read
 

@@ -196,7 +196,9 @@ def test_exaggerate_through_the_cli(tmp_path):
         else:
             assert tr.kind == ROTATION and np.degrees(quat.angle_between(a, b)).max() > 0.5
     root = m.skeleton.names[0]
-    r = run(["edit-pose", str(path), "--pose", "4", "--exaggerate", "2", "--joints", root, "--format", "json"])
+    r = run(
+        ["edit-pose", str(path), "--pose", "4", "--exaggerate", "2", "--joints", root, "--root", "--format", "json"]
+    )
     assert r.exit_code == 0, r.stderr
     named = load(r.stdout_bytes)
     tr = next(tr for tr in doc.tracks if tr.kind == TRANSLATION)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from ..errors import StaggeredError, UsageError
+from ..motion import BvhMotion
 from .common import check_output, finite, name_list, read_document, triples, write_document
 from .options import force_option, format_option, input_argument, on_option, output_option
 
@@ -35,7 +37,12 @@ from .options import force_option, format_option, input_argument, on_option, out
 @click.option(
     "--exaggerate",
     metavar="W",
-    help="Scale the pose's difference from a reference pose by W (1 = unchanged; BVH: rotations only unless --joints).",
+    help=(
+        "Scale the pose's difference from a reference pose by W (1 = unchanged). BVH: joint rotations only; the "
+        "figure keeps its place and heading (the root's translation and its turn about the up axis), its tilt is "
+        "scaled. C3D: the marker shape about the body's centre, each limb segment within the lengths the capture "
+        "gives it, planted markers held."
+    ),
 )
 @click.option(
     "--relative-to",
@@ -58,7 +65,10 @@ from .options import force_option, format_option, input_argument, on_option, out
 @click.option(
     "--root",
     is_flag=True,
-    help="With --from-bvh: take the root's place and heading from the file too (default: keep the document's).",
+    help=(
+        "With --from-bvh: take the root's place and heading from the file too; with --exaggerate: scale them too "
+        "(default: keep the document's)."
+    ),
 )
 @click.option(
     "--all",
@@ -95,7 +105,6 @@ def edit_pose(
 ):
     """Edit pose K of document FILE; the motion changes only between its neighbours."""
     from ..ops import edit_pose as ops
-    from ..ops.timing import retime_pose
 
     check_output(output, force)
     rot = triples(rotate, "--rotate")
@@ -123,8 +132,8 @@ def edit_pose(
         raise click.UsageError("Missing option '--pose' (or use --from-bvh FILE --all)")
     if (from_bvh is None) != (frame is None):
         raise click.UsageError("--from-bvh and --frame go together")
-    if root and from_bvh is None:
-        raise click.UsageError("--root goes with --from-bvh")
+    if root and from_bvh is None and w is None:
+        raise click.UsageError("--root goes with --from-bvh or --exaggerate")
     if not (rot or tra or w is not None or x is not None or from_bvh or new_time is not None or shift is not None):
         raise click.UsageError(
             "nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --ease, --time or --shift"
@@ -133,48 +142,43 @@ def edit_pose(
         raise click.UsageError(
             "--joints restricts --exaggerate, --from-bvh and --ease (--rotate and --translate name their own joints)"
         )
-    doc = read_document(input_path)
-    from ..model.document import check_pose_index
-    from ..ops.layers import ease as ease_op
+    from ..api import edit_pose as op
 
-    k = check_pose_index(doc, pose, layer)
-    values = None
-    if from_bvh is not None:
-        from ..errors import StaggeredError
-        from ..io.files import display_name
+    doc = read_document(input_path)
+    pose_file = None
+    if from_bvh is not None:  # read here, so that its errors name it as the command line gave it
         from .options import load_input
 
-        other = load_input(from_bvh)
-        try:
-            values = ops.values_from_motion(doc, other, frame, name_list(joints), subtree)
-        except StaggeredError as err:  # about the pose file, not the document
-            raise err.with_source(display_name(from_bvh)) from None
-    doc = ops.edit_pose(
-        doc,
-        k,
-        on=on,
-        rotate=rot,
-        translate=tra,
-        exaggerate=w,
-        relative_to=relative_to,
-        joints=name_list(joints),
-        subtree=subtree,
-        values=values,
-        root=root,
-        layer=layer,
-    )
-    if x is not None:
-        masks = ops.joint_mask(doc, name_list(joints), subtree) if joints else None
-        doc = ease_op(doc, k, x, layer=layer, masks=masks)
-    if new_time is not None or shift is not None:
-        t0 = doc.poses_of(layer)[k]
-        t = finite(new_time, "--time") if new_time is not None else t0 + finite(shift, "--shift")
-        if layer:
-            from ..ops.layers import retime_layer_pose
+        pose_file = load_input(from_bvh)
+        if not isinstance(pose_file, BvhMotion):
+            from ..io.files import display_name
 
-            doc = retime_layer_pose(doc, layer, k, t)
-        else:
-            doc = retime_pose(doc, k, t)
+            raise UsageError("--from-bvh needs a BVH document and a BVH file", source=display_name(from_bvh))
+    try:
+        doc = op(
+            doc,
+            pose,
+            layer=layer,
+            on=on,
+            rotate=rot,
+            translate=tra,
+            exaggerate=w,
+            relative_to=relative_to,
+            ease=x,
+            joints=name_list(joints),
+            subtree=subtree,
+            from_bvh=pose_file,
+            frame=frame,
+            root=root,
+            time=finite(new_time, "--time") if new_time is not None else None,
+            shift=finite(shift, "--shift") if shift is not None else None,
+        )
+    except StaggeredError as err:
+        if from_bvh is not None and err.source == getattr(pose_file, "name", None):
+            from ..io.files import display_name
+
+            err.source = display_name(from_bvh)
+        raise
     write_document(doc, output, fmt, force)
 
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 
 from .. import quat
-from ..errors import DataError, UsageError
+from ..errors import DataError, UsageError, arg
 from ..model.document import Document, check_pose_index
-from ..model.evaluate import evaluate
+from ..model.evaluate import evaluate, evaluate_at
 from ..model.kinds import ROTATION, TRANSLATION, ops_for
 from ..model.knots import Track, pose_arrays
 
@@ -92,7 +92,9 @@ def offsets(
         ti, i = _find(doc, name, TRANSLATION)
         xyz = np.asarray(xyz, dtype=float)
         if not np.all(np.isfinite(xyz)) or np.abs(xyz).max() > MAX_TRANSLATE * size:
-            raise UsageError(f"--translate {name}: at most {MAX_TRANSLATE:g} figure heights ({MAX_TRANSLATE * size:g})")
+            raise UsageError(
+                f"{arg('translate')} {name}: at most {MAX_TRANSLATE:g} figure heights ({MAX_TRANSLATE * size:g})"
+            )
         deltas[ti][i] = xyz
         touched[ti] = True
     return [d if t else None for d, t in zip(deltas, touched, strict=True)]
@@ -116,23 +118,25 @@ def joint_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[n
         try:
             j = doc.target_index(name)
         except UsageError as err:
-            raise UsageError(f"--joints: {err.message}") from None
+            raise UsageError(f"{arg('joints')}: {err.message}") from None
         chosen.extend(doc.source.skeleton.subtree(j).tolist() if subtree and doc.kind == "bvh" else [j])
     return [np.isin(tr.targets, chosen) for tr in doc.tracks]
 
 
-def exaggeration_mask(doc: Document, joints: list[str] | None, subtree: bool) -> list[np.ndarray]:
+def exaggeration_mask(doc: Document, joints: list[str] | None, subtree: bool, root: bool = False) -> list[np.ndarray]:
     """Per track, a (V,) mask of the variables ``--exaggerate`` scales.
 
     Exaggeration changes a pose's shape, not its place: in a BVH document
     only rotations are scaled (scaling the root translation's difference
     from the clip's mean would move the character across the room), unless
-    ``joints`` names joints explicitly, in which case every variable of the
-    chosen joints is, translations included.  In a C3D document every marker
-    (a translation) is scaled, within ``joints`` when given.
+    ``root``, in which case every variable is, translations included
+    (within ``joints`` when given).  The heading of the BVH's place joint is
+    kept apart from this mask (see :func:`_heading_kept`).  In a C3D
+    document every marker (a translation) is scaled, within ``joints`` when
+    given.
     """
     mask = joint_mask(doc, joints, subtree)
-    if doc.kind != "bvh" or joints:
+    if doc.kind != "bvh" or root:
         return mask
     return [m & (tr.kind == ROTATION) for tr, m in zip(doc.tracks, mask, strict=True)]
 
@@ -163,12 +167,17 @@ def edit_pose(
         paper's ``v ⊕ w_r(v ⊖ v_ref)`` with ``w_r = W - 1``), relative to
         ``relative_to``: ``'prev'``, ``'next'``, ``'average'`` (the mean pose
         of the source clip) or a pose index.  In a BVH document only the
-        rotations are scaled unless ``joints`` is given (see
-        :func:`exaggeration_mask`).  A rotation's scaled difference wraps
-        past a half turn, so W then 1/W restores differences under 180°/max(W, 1).
+        rotations are scaled unless ``root`` (see :func:`exaggeration_mask`).
+        A rotation's scaled difference wraps past a half turn, so W then 1/W
+        restores differences under 180°/max(W, 1).
+        A BVH pose keeps its place and heading unless ``root`` (see
+        :func:`_heading_kept`); a C3D pose keeps its limbs' lengths within
+        the capture's own (see :func:`_segments_kept`).
     values : per track (V, D) target values (e.g. from another BVH), applied
         where ``joints`` allows.  The pose keeps its place and heading (see
         :func:`_keep_place`) unless ``root``.
+    root : BVH: exaggerate (or take from ``values``) the place joint's
+        translation and heading and the joints above it too.
     joints, subtree : restrict exaggeration and ``values`` to part of the body.
     layer : edit pose ``k`` of this layer (0: the base layer's staggered
         poses).  On a layer above the base the pose is what the whole stack
@@ -178,7 +187,7 @@ def edit_pose(
     from . import layers
 
     if on not in ("true", "extreme"):
-        raise UsageError(f"--on must be 'true' or 'extreme', got {on!r}")
+        raise UsageError(f"{arg('on')} must be 'true' or 'extreme', got {on!r}")
     k = check_pose_index(doc, k, layer)
     times = doc.poses_of(layer)
     if layer:
@@ -203,23 +212,32 @@ def edit_pose(
         doc = apply(doc, offsets(doc, rotate, translate))
     if exaggerate is not None:
         check_exaggerate(exaggerate)
+        if root and doc.kind != "bvh":
+            raise UsageError(f"{arg('root')} is for a BVH's root; a C3D document's markers have none")
         r = _reference_pose(relative_to, k, len(times))
         cur = values_at(doc, k)
-        mask = exaggeration_mask(doc, joints, subtree)
+        mask = exaggeration_mask(doc, joints, subtree, root)
         if doc.kind == "c3d":  # the average of a marker set is its own (a mean shape)
             cur, ref = _marker_shapes(doc, times, k, r, cur, None if r is None else values_at(doc, r), mask[0])
         else:
             ref = average_pose(doc) if r is None else values_at(doc, r)
         deltas = []
-        for tr, c, r, m in zip(doc.tracks, cur, ref, mask, strict=True):
+        for tr, c, v, m in zip(doc.tracks, cur, ref, mask, strict=True):
             op = ops_for(tr.kind)
-            target = op.oplus(r, op.scale(op.ominus(c, r), exaggerate))
+            target = op.oplus(v, op.scale(op.ominus(c, v), exaggerate))
             d = op.ominus(target, c)
             d[~m] = op.identity()
             deltas.append(d)
+        if doc.kind == "bvh" and not root:
+            deltas = _heading_kept(doc, cur, None if r is None else ref, exaggerate, deltas, mask)
         if doc.kind == "c3d" and not joints:
             deltas = [_planted_held(doc, times, k, deltas[0])]
-        doc = apply(doc, deltas)
+        edited = apply(doc, deltas)
+        if doc.kind == "c3d" and not layer:
+            fixed = ~(mask[0] & _seen_at_pose(doc, times, k))
+            planted = _planted(doc, times, k) if not joints else np.zeros_like(fixed)
+            edited = _segments_kept(edited, doc, fixed, planted)
+        doc = edited
     if values is not None:
         cur = values_at(doc, k)
         mask = joint_mask(doc, joints, subtree)
@@ -238,7 +256,7 @@ def edit_pose(
 def check_exaggerate(w: float) -> None:
     """Refuse an ``--exaggerate`` weight that is not a number within :data:`MAX_EXAGGERATE`."""
     if not np.isfinite(w) or abs(w) > MAX_EXAGGERATE:
-        raise UsageError(f"--exaggerate must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
+        raise UsageError(f"{arg('exaggerate')} must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
 
 
 def place_joint(doc: Document) -> int:
@@ -252,10 +270,15 @@ def place_joint(doc: Document) -> int:
 
 
 def up_axis(doc: Document) -> np.ndarray:
-    """Unit up vector (3,) of a BVH document's figure (see :mod:`..contacts`)."""
+    """Unit up vector (3,) of a BVH document's figure, from the body's
+    joints as contact detection finds it (see :mod:`..contacts`): a still
+    joint above the body (Bandai's ``joint_Root`` at the origin) widens
+    every frame of a walk along its path (the Bandai walk's up came out -Z)."""
     from ..contacts.detect import up_direction
+    from ..skeleton import body_joints
 
-    return up_direction(doc.source.world_positions(), doc.source.figure_height())
+    src = doc.source
+    return up_direction(src.world_positions(), src.figure_height(), body_joints(src.skeleton))
 
 
 def heading_split(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -266,6 +289,111 @@ def heading_split(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray
     n = np.linalg.norm(twist, axis=-1, keepdims=True)
     twist = np.where(n > 1e-12, twist / np.maximum(n, 1e-300), quat.identity(q.shape[:-1]))
     return twist, quat.mul(quat.conj(twist), q)
+
+
+def _place_chain(doc: Document) -> list[int]:
+    """The :func:`place_joint` and its ancestors, up to the root."""
+    parents = doc.source.skeleton.parents
+    chain = [place_joint(doc)]
+    while parents[chain[-1]] >= 0:
+        chain.append(int(parents[chain[-1]]))
+    return chain
+
+
+def _rotation_of(doc: Document, j: int) -> tuple[int, int] | None:
+    """(track, variable) of joint ``j``'s rotation, None when it has none."""
+    for ti, tr in enumerate(doc.tracks):
+        if tr.kind == ROTATION and j in tr.targets:
+            return ti, int(np.flatnonzero(tr.targets == j)[0])
+    return None
+
+
+def _tilted_up(q: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Unit vectors (..., 3): where the rest of :func:`heading_split` of
+    ``q`` (its tilt, a turn about a horizontal axis) takes ``up``.  The tilt
+    is the shortest turn from ``up`` to that vector, so the vector alone
+    says it, with no heading in it."""
+    return quat.mul_vec(heading_split(q, up)[1], np.broadcast_to(up, np.shape(q)[:-1] + (3,)))
+
+
+def _tilt_towards(up: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The shortest turn (4,) that takes ``up`` to the unit vector ``d``."""
+    q = np.concatenate([[1.0 + float(up @ d)], np.cross(up, d)])
+    n = float(np.linalg.norm(q))
+    if n < 1e-9:  # upside down: half a turn about a horizontal axis
+        side = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+        return np.concatenate([[0.0], side / np.linalg.norm(side)])
+    return q / n
+
+
+def _scaled_direction(ref: np.ndarray, cur: np.ndarray, w: float) -> np.ndarray:
+    """The unit vector on the great circle from ``ref`` through ``cur`` at
+    ``w`` times their angle from ``ref`` (``w = 1``: ``cur``)."""
+    axis = np.cross(ref, cur)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-12:
+        return cur
+    angle = float(np.arctan2(s, float(ref @ cur)))
+    return quat.mul_vec(quat.exp(axis / s * (w * angle)), ref)
+
+
+def _heading_kept(
+    doc: Document,
+    cur: list[np.ndarray],
+    ref: list[np.ndarray] | None,
+    w: float,
+    deltas: list[np.ndarray],
+    mask: list[np.ndarray],
+) -> list[np.ndarray]:
+    """BVH: the changes of an exaggeration by ``w`` of pose values ``cur``
+    against ``ref`` (a pose's values; None: the source clip's average) that
+    keep the figure's place and heading, as ``--from-bvh`` does.
+
+    The joints above the :func:`place_joint` keep their values and the
+    chain's translations stay.  The place joint's world rotation is split
+    into heading (about the up axis) and tilt (:func:`heading_split`); the
+    tilt alone is exaggerated, in the figure's own facing frame: the
+    direction the tilt takes the up axis to turns away from the reference's
+    (the average: the mean of those directions over the source's frames,
+    each without its own heading, since the mean of opposite headings means
+    nothing) by ``w`` times their angle, and the pose's heading is put back.
+    """
+    chain = _place_chain(doc)
+    place, above = chain[0], chain[1:]
+    out = [d.copy() for d in deltas]
+    for ti, tr in enumerate(doc.tracks):  # translations and the joints above: kept
+        keep = np.isin(tr.targets, above) | ((tr.kind == TRANSLATION) & np.isin(tr.targets, chain))
+        out[ti][keep] = ops_for(tr.kind).identity()
+    at = _rotation_of(doc, place)
+    if at is None or not mask[at[0]][at[1]]:
+        return out
+    ti, i = at
+    up = up_axis(doc)
+
+    def world(vals: list[np.ndarray]) -> np.ndarray:
+        g = quat.identity()
+        for j in reversed(chain):
+            where = _rotation_of(doc, j)
+            if where is not None:
+                g = quat.mul(g, vals[where[0]][where[1]])
+        return g
+
+    g_cur = world(cur)
+    if ref is None:
+        rot = doc.source.local_rotations()
+        g = quat.identity((rot.shape[0],))
+        for j in reversed(chain):
+            g = quat.mul(g, rot[:, j])
+        mean = _tilted_up(g, up).mean(axis=0)
+        d_ref = mean / max(float(np.linalg.norm(mean)), 1e-12)
+    else:
+        d_ref = _tilted_up(world(ref), up)
+    heading, _ = heading_split(g_cur, up)
+    tilt = _tilt_towards(up, _scaled_direction(d_ref, _tilted_up(g_cur, up), w))
+    parent = quat.mul(g_cur, quat.conj(cur[ti][i]))  # the joints above, as they are
+    local = quat.mul(quat.conj(parent), quat.mul(heading, tilt))
+    out[ti][i] = quat.normalize(quat.ominus(quat.hemisphere(local, cur[ti][i]), cur[ti][i]))
+    return out
 
 
 def _keep_place(doc: Document, cur: list[np.ndarray], values: list[np.ndarray]) -> list[np.ndarray]:
@@ -364,25 +492,89 @@ def _planted_held(doc: Document, times: np.ndarray, k: int, delta: np.ndarray) -
     shifted alike so that the changes still sum to zero over the markers
     seen at the pose: the contact layer of ``bake`` would hold the planted
     ones anyway, and the body's centre would then move."""
+    planted = _planted(doc, times, k)
+    if not planted.any() or planted.all():
+        return delta
+    seen = _seen_at_pose(doc, times, k)
+    free = seen & ~planted
+    if not free.any():
+        return delta
+    out = delta.copy()
+    out[free] += delta[seen & planted].sum(axis=0) / free.sum()  # a marker in a gap at the pose stays
+    out[planted] = 0.0
+    return out
+
+
+def _planted(doc: Document, times: np.ndarray, k: int) -> np.ndarray:
+    """C3D: mask (M,) of the markers planted while an edit of pose ``k``
+    acts (a contact constraint overlapping the span between its neighbours)."""
     labels = list(doc.target_names)
-    t = times[k]
     lo = times[max(k - 1, 0)]
     hi = times[min(k + 1, len(times) - 1)]
     planted = np.zeros(len(labels), dtype=bool)
     for c in doc.constraints:
         if c.joint in labels and c.start < hi and c.end > lo:
             planted[labels.index(c.joint)] = True
-    if not planted.any() or planted.all():
-        return delta
-    frame = _frame_of(doc, t)
-    seen = np.all(np.isfinite(doc.source.points[frame]), axis=1)
-    free = seen & ~planted
-    if not free.any():
-        return delta
-    out = delta.copy()
-    out[~planted] += delta[seen & planted].sum(axis=0) / free.sum()
-    out[planted] = 0.0
-    return out
+    return planted
+
+
+def _seen_at_pose(doc: Document, times: np.ndarray, k: int) -> np.ndarray:
+    """C3D: mask (M,) of the markers captured at pose ``k``'s frame."""
+    return np.all(np.isfinite(doc.source.points[_frame_of(doc, times[k])]), axis=1)
+
+
+def _segments_kept(doc: Document, before: Document, fixed: np.ndarray, planted: np.ndarray) -> Document:
+    """C3D: the edited document ``doc`` with every segment of its marker
+    tree (see :func:`.marker_chain.document_tree`) within the lengths the
+    source gives it, at every source frame and knot.
+
+    An exaggeration scales the markers' shape as points, which stretches
+    limbs (elbow to wrist 267-290 mm became 222-367 mm on a sprint), and the
+    splines between the edited pose and its neighbours blend the change in
+    along straight lines, which shortens a turning segment.  So the edited
+    motion is walked along the tree (see :func:`.marker_chain.keep_segments`)
+    from the ``fixed`` markers (outside the edit, or in a gap at the pose)
+    and from the body held as it was (``before``) between each ``planted``
+    marker and the body's centre (:func:`.marker_chain.centre_marker`), the
+    stance that carries the body as the contact layer would: each other
+    marker is put at the one it hangs from plus its own exaggerated
+    direction times its length clamped into the source's [shortest,
+    longest] for that segment.  The markers that moved are refitted on the
+    same knots; the rest keep their values.
+    """
+    from . import marker_chain
+
+    track = doc.tracks[0]
+    parents = marker_chain.document_tree(doc)
+    if not (parents >= 0).any():
+        return doc
+    pts = doc.source.points
+    lo, hi = marker_chain.segment_ranges(pts, parents)
+    frame_t = doc.frame_times
+    t = np.unique(np.concatenate([frame_t, track.knot_t]))
+    V = track.n_vars
+
+    def sampled(tr: Track, depth: int | None = None) -> np.ndarray:
+        v = evaluate_at(tr, np.repeat(np.arange(V), len(t)), np.tile(t, V), depth=depth)
+        return v.reshape(V, len(t), 3).transpose(1, 0, 2)
+
+    values = sampled(track)  # what bake gives: every layer (the base refitted below carries the change)
+    hold = np.zeros(V, dtype=bool)
+    if planted.any():
+        centre = marker_chain.centre_marker(pts)
+        for m in np.flatnonzero(planted):
+            hold[marker_chain.tree_path(parents, int(m), centre)] = True
+        hold &= ~fixed | planted
+    if hold.any():
+        values[:, hold] = sampled(before.tracks[0])[:, hold]
+    seen = marker_chain.seen_at(np.all(np.isfinite(pts), axis=2), frame_t, t)
+    out = marker_chain.keep_segments(values, parents, fixed | hold, lo, hi, seen)
+    start = sampled(track)
+    changed = np.any(out != start, axis=(0, 2))
+    if changed.any():  # markers are sums of their layers: the base takes the difference
+        base = sampled(track, depth=1)
+        track = marker_chain.refit_markers(track, frame_t, t, base + (out - start), changed)
+    return doc.with_tracks((track,) + tuple(doc.tracks[1:]))
 
 
 def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[np.ndarray]:
@@ -407,7 +599,9 @@ def _reference_pose(relative_to: str, k: int, n_poses: int) -> int | None:
     try:
         r = int(key)
     except ValueError:
-        raise UsageError(f"--relative-to takes prev, next, average or a pose index, got {relative_to!r}") from None
+        raise UsageError(
+            f"{arg('relative_to')} takes prev, next, average or a pose index, got {relative_to!r}"
+        ) from None
     if not -n_poses <= r < n_poses:
         raise UsageError(f"pose {r} is out of range (the document has poses 0 to {n_poses - 1})")
     r %= n_poses
@@ -433,9 +627,9 @@ def values_from_motion(
     from ..motion import BvhMotion
 
     if doc.kind != "bvh" or not isinstance(motion, BvhMotion):
-        raise UsageError("--from-bvh needs a BVH document and a BVH file")
+        raise UsageError(f"{arg('from_bvh')} needs a BVH document and a BVH file")
     if not -motion.n_frames <= frame < motion.n_frames:
-        raise UsageError(f"--frame {frame} is out of range (the file has frames 0 to {motion.n_frames - 1})")
+        raise UsageError(f"{arg('frame')} {frame} is out of range (the file has frames 0 to {motion.n_frames - 1})")
     mask = joint_mask(doc, joints, subtree)
     ours = doc.source.skeleton.names
     theirs = {n: j for j, n in enumerate(motion.skeleton.names)}

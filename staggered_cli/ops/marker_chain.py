@@ -127,7 +127,7 @@ def recomposed(
     values[:, involved] = flat.reshape(len(involved), len(t), 3).transpose(1, 0, 2)
     out = values.copy()
     if to_offsets and seen is not None and not seen.all():
-        values = _gaps_filled_down_the_tree(values, parents, order, _seen_at(seen, frame_t, t), t)
+        values = _gaps_filled_down_the_tree(values, parents, order, seen_at(seen, frame_t, t), t)
     for i in order:  # parents first: a parent's position is rebuilt before its child's
         p = parents[i]
         out[:, i] = values[:, i] - values[:, p] if to_offsets else values[:, i] + out[:, p]
@@ -148,7 +148,7 @@ def recomposed(
     return track.with_base(_with_variables(fitted, track.base, keep))
 
 
-def _seen_at(seen: np.ndarray, frame_t: np.ndarray, t: np.ndarray) -> np.ndarray:
+def seen_at(seen: np.ndarray, frame_t: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(N, M): whether each marker was seen at both source frames around each time."""
     ft = frame_t[1] - frame_t[0] if len(frame_t) > 1 else 1.0
     f = np.clip(t / ft, 0, len(frame_t) - 1)
@@ -211,3 +211,266 @@ def with_marker_tree(parameters: dict, labels: tuple[str, ...], parents: np.ndar
     if tree_has_loop(merged):
         merged = new
     return {**parameters, "marker_tree": merged}
+
+
+
+def segment_ranges(points: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shortest and longest length (M,) each marker's segment to its parent
+    has over the frames that see both (NaN: no parent, or never seen together).
+    ``points`` (T, M, 3)."""
+    M = points.shape[1]
+    lo = np.full(M, np.nan)
+    hi = np.full(M, np.nan)
+    for i in np.flatnonzero(parents >= 0):
+        d = np.linalg.norm(points[:, i] - points[:, parents[i]], axis=1)
+        d = d[np.isfinite(d)]
+        if len(d):
+            lo[i], hi[i] = d.min(), d.max()
+    return lo, hi
+
+
+def walk_from(parents: np.ndarray, fixed: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """The tree ``parents`` walked outwards from its ``fixed`` markers.
+
+    Returns ``steps``, (marker, via) in walking order: every marker of a
+    component that holds a fixed marker is reached from the nearest one
+    (breadth first), those of a component without one from its root; and
+    ``meetings``, the tree's edges (a, b) that join two walks (between two
+    fixed markers of one component), which the steps do not place.
+    """
+    M = len(parents)
+    nbrs: list[list[int]] = [[] for _ in range(M)]
+    for i, p in enumerate(parents):
+        if p >= 0:
+            nbrs[i].append(int(p))
+            nbrs[int(p)].append(i)
+    via = np.full(M, -2, dtype=int)  # -2: not reached yet, -1: a start
+    steps: list[tuple[int, int]] = []
+    meetings: list[tuple[int, int]] = []
+
+    def bfs(starts: list[int]) -> None:
+        queue = list(starts)
+        for s in starts:
+            via[s] = -1
+        while queue:
+            nxt = []
+            for u in queue:
+                for v in nbrs[u]:
+                    if via[v] == -2:
+                        via[v] = u
+                        steps.append((v, u))
+                        nxt.append(v)
+            queue = nxt
+
+    fixed = np.asarray(fixed, dtype=bool)
+    bfs([int(i) for i in np.flatnonzero(fixed)])
+    for r in np.flatnonzero(parents < 0):  # the components without a fixed marker, from their roots
+        if via[r] == -2:
+            bfs([int(r)])
+    for i, p in enumerate(parents):
+        if p >= 0 and via[i] != p and via[p] != i:
+            meetings.append((int(p), i))
+    return steps, meetings
+
+
+def keep_segments(
+    pos: np.ndarray,
+    parents: np.ndarray,
+    fixed: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    seen: np.ndarray,
+) -> np.ndarray:
+    """Positions (N, M, 3) with every segment of the tree ``parents`` at a
+    length within its [``lo``, ``hi``] (per child marker, see
+    :func:`segment_ranges`).
+
+    The tree is walked from the ``fixed`` markers (:func:`walk_from`), which
+    stay: each marker is put at the one it is reached from plus its own
+    direction in ``pos`` times its length clamped into the range.  Where a
+    walk meets another (a segment between two fixed markers' walks), the
+    path between the two is moved as a chain with both ends held
+    (:func:`_chain_between`), and what hangs from it follows.  A segment
+    with a marker not ``seen`` (N, M) at a time, or no range, is left alone
+    there.  Markers and times nothing moves keep their values bit for bit.
+    """
+    out = pos.copy()
+    steps, meetings = walk_from(parents, fixed)
+
+    def rng(a: int, b: int) -> tuple[float, float]:
+        c = a if parents[a] == b else b
+        return float(lo[c]), float(hi[c])
+
+    below: dict[int, list[int]] = {}
+    for c, v in steps:
+        below.setdefault(v, []).append(c)
+        a, b = rng(c, v)
+        if not np.isfinite(a):
+            continue
+        d = pos[:, c] - pos[:, v]
+        n = np.linalg.norm(d, axis=1)
+        length = np.clip(n, a, b)
+        moved = np.any(out[:, v] != pos[:, v], axis=1)
+        act = seen[:, c] & seen[:, v] & ((length != n) | moved) & (n > 0)
+        out[act, c] = out[act, v] + d[act] * (length[act] / n[act])[:, None]
+    via = dict(steps)  # the markers reached from another: neither fixed nor a root
+
+    def back(i: int) -> list[int]:  # i, the marker it was reached from, ... its start
+        out_ = [i]
+        while out_[-1] in via:
+            out_.append(via[out_[-1]])
+        return out_
+
+    for _ in range(_MEETING_ROUNDS):  # a chain solved later can move a marker of one solved before
+        for a, b in meetings:
+            if a not in via and b not in via:
+                continue  # both fixed (or starts): the capture's own length there
+            path = back(a)[::-1] + back(b)
+            lengths = [rng(u, v) for u, v in zip(path[:-1], path[1:], strict=True)]
+            if not all(np.isfinite(r[0]) for r in lengths):
+                continue
+            ra = rng(a, b)
+            gap = np.linalg.norm(out[:, b] - out[:, a], axis=1)
+            wrong = seen[:, a] & seen[:, b] & ((gap < ra[0] * (1 - 1e-9)) | (gap > ra[1] * (1 + 1e-9)))
+            if not wrong.any():
+                continue
+            on_path = set(path)
+            at = path.index(a)
+            pattern = seen[:, path]
+            for pat in np.unique(pattern[wrong], axis=0):  # the markers of the path seen, frames alike
+                act = wrong & np.all(pattern == pat, axis=1)
+                lo_, hi_ = at, at + 1  # the stretch around the meeting that is seen
+                while lo_ > 0 and pat[lo_ - 1]:
+                    lo_ -= 1
+                while hi_ < len(path) - 1 and pat[hi_ + 1]:
+                    hi_ += 1
+                part = path[lo_ : hi_ + 1]
+                before = out[act][:, part]
+                placed = _chain_between(before, np.array(lengths[lo_:hi_]), lo_ == 0, hi_ == len(path) - 1)
+                shift = placed - before
+                for n, node in enumerate(part):
+                    out[act, node] = placed[:, n]
+                    stack = [c for c in below.get(node, []) if c not in on_path]
+                    while stack:  # what hangs from a marker of the path moves with it
+                        c = stack.pop()
+                        out[act, c] += shift[:, n]
+                        stack.extend(below.get(c, []))
+    return out
+
+
+#: Passes of :func:`_chain_between` at most (each a forward and a backward sweep).
+_CHAIN_PASSES = 50
+#: Rounds over the meetings of :func:`keep_segments` at most.
+_MEETING_ROUNDS = 4
+
+
+def _chain_between(p: np.ndarray, ranges: np.ndarray, first: bool = True, last: bool = True) -> np.ndarray:
+    """Points (N, n, 3) of a chain whose ends ``p[:, 0]`` and ``p[:, -1]``
+    stay, moved so that each link's length lies within ``ranges`` (n-1, 2)
+    (FABRIK: sweeps from either end, each link keeping its direction and
+    its length clamped into its range, until every link is within its
+    own).  The capture itself had such a chain between the same ends
+    wherever they are held where it had them, so a solution exists.  With
+    only one end held (``first``, ``last``: which), one sweep from it; with
+    none, from the first."""
+    out = p.copy()
+    lo, hi = ranges[:, 0], ranges[:, 1]
+    n = out.shape[1]
+
+    def link(frm: np.ndarray, to: np.ndarray, i: int) -> np.ndarray:
+        d = to - frm
+        length = np.linalg.norm(d, axis=1, keepdims=True)
+        return frm + d * (np.clip(length, lo[i], hi[i]) / np.maximum(length, 1e-12))
+
+    if not (first and last):
+        order = range(n - 2, -1, -1) if last else range(1, n)
+        for i in order:
+            out[:, i] = link(out[:, i + 1], out[:, i], i) if last else link(out[:, i - 1], out[:, i], i - 1)
+        return out
+
+    for _ in range(_CHAIN_PASSES):
+        length = np.linalg.norm(np.diff(out, axis=1), axis=2)
+        if np.all((length >= lo * (1 - 1e-9)) & (length <= hi * (1 + 1e-9))):
+            break
+        for i in range(n - 2, 0, -1):  # from the far end back
+            out[:, i] = link(out[:, i + 1], out[:, i], i)
+        for i in range(1, n - 1):  # and from the near end out
+            out[:, i] = link(out[:, i - 1], out[:, i], i - 1)
+    return out
+
+
+def refit_markers(track: Track, frame_t: np.ndarray, t: np.ndarray, values: np.ndarray, changed: np.ndarray) -> Track:
+    """The track with the markers ``changed`` refitted to ``values`` (N, V, 3)
+    at times ``t`` (the source frames and every knot time among them), with
+    the same knots: exact at the frames that are baked and at the knots."""
+    changed = np.asarray(changed, dtype=bool)
+    if not changed.any():
+        return track
+    keep = np.flatnonzero(~changed)
+    samples_t, samples_v = [], []
+    knot_v = track.knot_v.copy()
+    for i in range(track.n_vars):
+        if not changed[i]:
+            samples_t.append(np.zeros(0))
+            samples_v.append(np.zeros((0, 3)))
+            continue
+        kt = track.knot_t[track.knot_slice(i)]
+        st = np.unique(np.concatenate([frame_t, kt]))
+        rows = np.searchsorted(t, st)
+        samples_t.append(st)
+        samples_v.append(values[rows, i])
+        knot_v[track.knot_slice(i)] = values[np.searchsorted(t, kt), i]
+    fitted = fit_layer(track.kind, track.knots.with_values(knot_v), samples_t, samples_v)
+    return track.with_base(_with_variables(fitted, track.base, keep))
+
+
+def document_tree(doc) -> np.ndarray:
+    """Parent index (M,) of every marker of a C3D document: its
+    ``marker_tree`` (from succession or randomize) where it has one, else
+    :func:`rigid_tree` of its source (what ``randomize`` joins every marker
+    with)."""
+    labels = list(doc.target_names)
+    tree = dict(doc.parameters.get("marker_tree", {}))
+    parents = np.full(len(labels), -1, dtype=int)
+    for child, parent in tree.items():
+        if child in labels and parent in labels:
+            parents[labels.index(child)] = labels.index(parent)
+    if (parents >= 0).any():
+        return parents
+    return rigid_tree(doc.source.points)
+
+
+def centre_marker(points: np.ndarray) -> int:
+    """The marker (index) nearest the body's centre: the least median
+    distance to the centroid of the markers seen with it, over the frames
+    (evenly spread, gaps ignored).  ``points`` (T, M, 3)."""
+    T = points.shape[0]
+    pts = points[np.unique(np.linspace(0, T - 1, min(T, _TREE_FRAMES)).astype(int))]
+    seen = np.all(np.isfinite(pts), axis=2)
+    n = seen.sum(axis=1, keepdims=True)
+    centre = np.where(seen[..., None], pts, 0.0).sum(axis=1) / np.maximum(n, 1)
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(pts - centre[:, None], axis=2)
+    d = np.where(seen, d, np.nan)
+    ok = seen.any(axis=0)
+    med = np.full(points.shape[1], np.inf)
+    med[ok] = np.nanmedian(d[:, ok], axis=0)
+    return int(np.argmin(med))
+
+
+def tree_path(parents: np.ndarray, a: int, b: int) -> list[int]:
+    """The markers on the tree's path from ``a`` to ``b`` (both included;
+    empty when they are in different components)."""
+
+    def up(i: int) -> list[int]:
+        out = [i]
+        while parents[out[-1]] >= 0 and len(out) <= len(parents):
+            out.append(int(parents[out[-1]]))
+        return out
+
+    ua, ub = up(a), up(b)
+    common = set(ua) & set(ub)
+    if not common:
+        return []
+    meet = next(i for i in ua if i in common)
+    return ua[: ua.index(meet) + 1] + ub[: ub.index(meet)][::-1]
