@@ -30,8 +30,10 @@ FILES = {
 }
 STEPS = "cull --keep 30%|succession --joint @left-arm --offset 0.03 --power 1.5 --clamp"
 STEPS_C3D = "cull --keep 30%"
-API_STEPS_BVH = [("cull", {"keep": "30%"}), ("succession", {"joint": "@left-arm", "offset": 0.03, "power": 1.5,
-                                                            "clamp": True})]
+API_STEPS_BVH = [
+    ("cull", {"keep": "30%"}),
+    ("succession", {"joint": "@left-arm", "offset": 0.03, "power": 1.5, "clamp": True}),
+]
 
 
 def _batch(*args: str):
@@ -63,10 +65,30 @@ def runs(library):
     """The README's steps for both kinds, then per-kind steps with bake options (CLI and API)."""
     lib = str(library / "in")
     same = _batch(lib, str(library / "same"), "--steps", STEPS, "-j", "2")
-    kinds = _batch(lib, str(library / "kinds"), "--steps", STEPS, "--steps-c3d", STEPS_C3D,
-                   "--bake-opts", "--fps 30", "--extract-opts", "--min-spacing 0.15", "-j", "2", "-v")
-    api = st.batch(lib, library / "api", steps=API_STEPS_BVH, steps_c3d=[("cull", {"keep": "30%"})],
-                   bake_opts={"fps": 30}, extract_opts={"min_spacing": 0.15}, jobs=2)
+    kinds = _batch(
+        lib,
+        str(library / "kinds"),
+        "--steps",
+        STEPS,
+        "--steps-c3d",
+        STEPS_C3D,
+        "--bake-opts",
+        "--fps 30",
+        "--extract-opts",
+        "--min-spacing 0.15",
+        "-j",
+        "2",
+        "-v",
+    )
+    api = st.batch(
+        lib,
+        library / "api",
+        steps=API_STEPS_BVH,
+        steps_c3d=[("cull", {"keep": "30%"})],
+        bake_opts={"fps": 30},
+        extract_opts={"min_spacing": 0.15},
+        jobs=2,
+    )
     return same, kinds, api
 
 
@@ -75,7 +97,10 @@ def test_one_set_of_steps_fails_the_c3d_files(runs):
     rows = _rows(same.stdout)
     assert same.exit_code == 1
     assert {rel: rows[rel][0] for rel in FILES} == {
-        "bvh/walk.bvh": "built", "bvh/run.bvh": "built", "c3d/walk.c3d": "failed", "c3d/gaps.c3d": "failed"
+        "bvh/walk.bvh": "built",
+        "bvh/run.bvh": "built",
+        "c3d/walk.c3d": "failed",
+        "c3d/gaps.c3d": "failed",
     }
     assert rows["c3d/walk.c3d"][1] == (
         "succession: C3D documents have no hierarchy: give the markers in order with --chain M1,M2,M3"

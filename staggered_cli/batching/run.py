@@ -60,8 +60,11 @@ def describe_change(before, after) -> str:
     if after is before:
         return "nothing changed"
     if after.n_poses != before.n_poses:
-        parts.append(f"{after.n_poses} of {before.n_poses} poses kept" if after.n_poses < before.n_poses
-                     else f"poses {before.n_poses} -> {after.n_poses}")
+        parts.append(
+            f"{after.n_poses} of {before.n_poses} poses kept"
+            if after.n_poses < before.n_poses
+            else f"poses {before.n_poses} -> {after.n_poses}"
+        )
     if after.n_layers != before.n_layers:
         parts.append(f"layers {before.n_layers} -> {after.n_layers}")
     if len(after.constraints) != len(before.constraints):

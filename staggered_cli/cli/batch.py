@@ -264,8 +264,9 @@ STEPS_HELP = (
 @click.option("--dry-run", is_flag=True, help="Check the steps and list what would be built; build nothing.")
 @click.option("-v", "--verbose", is_flag=True, help="Say what each stage did for each file (as `staggered -v batch`).")
 @click.pass_context
-def batch(ctx, in_dir, out_dir, steps, steps_bvh, steps_c3d, extract_opts, bake_opts, jobs, shard, force, dry_run,
-          verbose):
+def batch(
+    ctx, in_dir, out_dir, steps, steps_bvh, steps_c3d, extract_opts, bake_opts, jobs, shard, force, dry_run, verbose
+):
     """Bake every BVH and C3D under IN_DIR into the same tree under OUT_DIR.
 
     Each file goes through `extract FILE | STEP | ... | bake -o OUT_DIR/FILE`
@@ -314,7 +315,9 @@ def batch(ctx, in_dir, out_dir, steps, steps_bvh, steps_c3d, extract_opts, bake_
     if _progress_wanted():
         from tqdm import tqdm
 
-        bar = tqdm(unit="file", file=sys.stderr, dynamic_ncols=True, leave=False)
+        todo, _ = B.plan(in_dir, out_dir, force, shard=part)  # the bar's length (a walk of the folder)
+        if todo:
+            bar = tqdm(total=len(todo), unit="file", file=sys.stderr, dynamic_ncols=True, leave=False)
 
     def report(result) -> None:
         lines = [] if quiet else [f"{PROG}: {result.rel}: WARNING: {m}" for m in result.cli_messages]
