@@ -210,7 +210,7 @@ def test_bad_options_fail_before_any_file(tmp_path, args, words):
         ({"steps": [("cull", {"kep": "30%"})]}, "steps: step 1 ('cull'): cull takes no argument 'kep'"),
         ({"steps": [("bake", {})]}, "steps: step 1 ('bake'): extract and bake are implied"),
         ({"steps_c3d": [("randomize", {"tau": -1, "seed": 1})]}, "steps_c3d: step 1 ('randomize'): tau must not"),
-        ({"bake_opts": {"fps": 0}}, "bake_opts: --fps must be a positive number"),
+        ({"bake_opts": {"fps": 0}}, "fps must be a positive number"),
         ({"extract_opts": {"significance": -1}}, "extract_opts: significance must be a non-negative number"),
         ({"shard": "3/2"}, "shard '3/2': I must be between 1 and 2"),
         ({"jobs": 0}, "jobs must be at least 1"),
