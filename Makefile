@@ -4,7 +4,7 @@
 # make bench  run every bench/*.py
 # make golden regenerate tests/golden/ on purpose (tests never do)
 # make test-blender  set up .venv-blender (Python 3.11, bpy 5.0.1) and run the Blender round trip tests
-# make batch  IN=dir OUT=dir [STEPS='cull --keep 30%|...']: extract -> steps -> bake over a library
+# make batch  IN=dir OUT=dir [STEPS='cull --keep 30%|...']: staggered batch over a library
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -20,7 +20,7 @@ PYTEST_ARGS ?=
 # (its module fixtures are built once); TEST_WORKERS=0 runs them in this one
 TEST_WORKERS ?= 2
 
-.PHONY: all demo test test-blender lint bench golden install clean batch _batch-files samples pictures
+.PHONY: all demo test test-blender lint bench golden install clean batch samples pictures
 
 all: test
 
@@ -106,88 +106,32 @@ samples: $(STAMP)
 	$(BIN)/python data/samples/make_samples.py
 
 # ---------------------------------------------------------------------------
-# make -j2 -k batch IN=dir OUT=dir [STEPS='cull --keep 30%|succession --joint LeftShoulder --offset 0.02 --power 2']
+# make [-j N] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...'] [STEPS_BVH=...] [STEPS_C3D=...]
+#                   [EXTRACT_OPTS='--min-spacing 0.15'] [BAKE_OPTS='--fps 30'] [JOBS=N] [FORCE=1]
 #
-# For every .bvh / .c3d (any case) under IN, at any depth:
-#   staggered extract IN/rel -o - | staggered STEP1 - -o - | ... | staggered bake - -o OUT/rel
-# OUT mirrors IN's tree.  An output is rebuilt only when older than its input
-# (make's rule: after changing STEPS, use -B).  STEPS has the syntax of
-# `staggered batch --steps` and is checked once before any file.  A failing
-# file leaves no output (bake writes atomically; a previous output of it is
-# removed) and its stderr in OUT/rel.err; with -k the others go on.  The
-# summary names every input without an up-to-date output, with its reason.
-# Spaces in names under IN work; IN and OUT themselves may hold no whitespace
-# and, like the names under IN, none of BATCH_BAD_CHARS (make or the shell
-# would read them): such IN / OUT are refused (exit 2), such files skipped
-# and reported as failed (`staggered batch` handles any name).
+# `staggered batch IN OUT --steps "$STEPS" -j N` (see `staggered batch --help`):
+# extract | steps | bake for every .bvh / .c3d under IN into the same tree
+# under OUT, outputs up to date skipped (after changing STEPS use FORCE=1).
+# A thin rule over the command rather than a pattern rule per file, so that
+# there is one implementation: the same steps grammar, checks before any
+# file, up-to-date rule, per-kind steps, statuses (built / unchanged /
+# skipped / failed) and crash isolation as the command, any file name (make
+# cannot spell names with spaces, ':' or '%' as targets), and one Python
+# process per worker instead of three per file.  JOBS defaults to make's -j.
 STAGGERED ?= $(BIN)/staggered
-export STEPS
-BATCH_IN = $(patsubst %/,%,$(IN))
-BATCH_OUT = $(patsubst %/,%,$(OUT))
-BATCH_MAKEFILE := $(lastword $(MAKEFILE_LIST))
-# one name a line, sorted, without ./ (a newline in a name arrives as \036)
-BATCH_FIND = find . -xtype f \( -iname '*.bvh' -o -iname '*.c3d' \) -print0 | tr '\n\0' '\036\n' | LC_ALL=C sort | sed 's|^\./||'
-batch_empty :=
-# the characters, and a bracket expression (grep -E, bash =~) of them and control characters
-BATCH_BAD_CHARS := " \# $$ : ; = \ ` | % * ? [ ]
-BATCH_BAD_NAME := [][:cntrl:]"\#$$:;=\`|%*?[]
-BATCH_UNSUPPORTED := file name not supported by make batch; use staggered batch
-
-ifneq ($(filter batch,$(MAKECMDGOALS)),)
-# checked before anything runs: make splits IN and OUT on whitespace and reads the others
-batch_bad_paths := $(strip $(foreach c,$(BATCH_BAD_CHARS),$(if $(findstring $c,$(value IN)$(value OUT)),$c)))
-ifeq ($(strip $(value IN)),)
-$(error usage: make [-j N] [-k] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...'])
-else ifeq ($(strip $(value OUT)),)
-$(error usage: make [-j N] [-k] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...'])
-else ifneq ($(words x$(value IN)x x$(value OUT)x),2)
-$(error make batch: IN and OUT must not contain whitespace (make splits them); rename, or use staggered batch)
-else ifneq ($(batch_bad_paths),)
-$(error make batch: IN and OUT must not contain any of $(BATCH_BAD_CHARS) (found $(batch_bad_paths)); rename, or use staggered batch)
-endif
-endif
+JOBS ?= $(or $(patsubst -j%,%,$(filter -j%,$(MAKEFLAGS))),1)
+# a make variable as one shell word, exactly as given (no $ expansion by make)
+batch_q = '$(subst ','\'',$(value $1))'
 
 batch: $(STAMP)
-	@$(STAGGERED) -q batch "$(BATCH_IN)" "$(BATCH_OUT)" --steps "$$STEPS" --dry-run > /dev/null
-	@status=0; $(MAKE) -f "$(BATCH_MAKEFILE)" --no-print-directory _batch-files || status=$$?; \
-	export LC_ALL=C; bad='$(BATCH_BAD_NAME)'; total=0; failed=0; \
-	while IFS= read -r rel; do \
-	  total=$$((total + 1)); in="$(BATCH_IN)/$$rel"; out="$(BATCH_OUT)/$$rel"; reason=; \
-	  if [[ $$rel =~ $$bad ]]; then \
-	    reason="$(BATCH_UNSUPPORTED)"; \
-	  elif [ -f "$$out.err" ]; then \
-	    reason=$$(grep -v ': WARNING: ' -- "$$out.err" | grep -m 1 .); reason=$${reason:-exit status $$status}; \
-	  elif [ ! -f "$$out" ] || [ "$$out" -ot "$$in" ]; then \
-	    reason="not built"; \
-	  fi; \
-	  if [ -n "$$reason" ]; then failed=$$((failed + 1)); echo "  FAILED $$rel: $$reason"; fi; \
-	done < <(cd -- "$(BATCH_IN)" && $(BATCH_FIND)); \
-	echo "make batch: $$total files, $$failed failed (outputs in $(BATCH_OUT))"; \
-	if [ $$failed -gt 0 ] && [ $$status -eq 0 ]; then status=1; fi; \
-	exit $$status
-
-ifneq ($(filter _batch-files,$(MAKECMDGOALS)),)
-# make splits its word lists on spaces: a space in a path travels as \037
-# and becomes an escaped space only in the rules; names make cannot handle
-# get no rule (the summary reports them)
-BATCH_US := $(shell printf '\037')
-batch_esc = $(subst $(BATCH_US),\$(batch_empty) $(batch_empty),$1)
-BATCH_RELS := $(shell cd -- "$(BATCH_IN)" && $(BATCH_FIND) | LC_ALL=C grep -v -E -e '$(BATCH_BAD_NAME)' | tr ' ' '\037')
-BATCH_STEPS = $(if $(strip $(STEPS)),| $(STAGGERED) $(subst |, - -o - | $(STAGGERED) ,$(STEPS)) - -o - )
-BATCH_PIPE = $(STAGGERED) extract "$<" -o - $(BATCH_STEPS)| $(STAGGERED) bake - -o "$@" --force
-BATCH_RECIPE = set -o pipefail; out="$@"; err="$@.err"; mkdir -p -- "$$(dirname -- "$$out")"; \
-  if { $(BATCH_PIPE); } 2> "$$err"; then \
-    cat -- "$$err" >&2; rm -f -- "$$err"; echo "baked $$out"; \
-  else rm -f -- "$$out"; echo "failed $<" >&2; exit 1; fi
-
-_batch-files: $(foreach r,$(BATCH_RELS),$(call batch_esc,$(BATCH_OUT)/$r))
-
-define batch_rule
-$(call batch_esc,$(BATCH_OUT)/$1): $(call batch_esc,$(BATCH_IN)/$1)
-	@$$(BATCH_RECIPE)
-endef
-$(foreach r,$(BATCH_RELS),$(eval $(call batch_rule,$r)))
-endif
+	@if [ -z $(call batch_q,IN) ] || [ -z $(call batch_q,OUT) ]; then \
+	  echo "usage: make [-j N] batch IN=dir OUT=dir [STEPS='cull --keep 30%|...']" >&2; exit 2; fi
+	@$(STAGGERED) batch $(call batch_q,IN) $(call batch_q,OUT) --steps $(call batch_q,STEPS) --jobs $(JOBS) \
+	  $(if $(value STEPS_BVH),--steps-bvh $(call batch_q,STEPS_BVH)) \
+	  $(if $(value STEPS_C3D),--steps-c3d $(call batch_q,STEPS_C3D)) \
+	  $(if $(value EXTRACT_OPTS),--extract-opts $(call batch_q,EXTRACT_OPTS)) \
+	  $(if $(value BAKE_OPTS),--bake-opts $(call batch_q,BAKE_OPTS)) \
+	  $(if $(FORCE),--force)
 
 clean:
 	rm -rf out build *.egg-info .pytest_cache .ruff_cache

@@ -18,8 +18,8 @@ Four tables:
    same file (goal: within 6x); numpy's default ``%.18e`` shown for reference.
 4. ``staggered batch --jobs 2`` (extract and bake) over the 10 BVH files,
    wall time, against Blender 5.0.1's 11.8 s to import and export them
-   unchanged; and ``make -j2 batch`` over the same files (one process per
-   stage) for comparison.
+   unchanged; and ``make -j2 batch`` over the same files (a thin rule over
+   ``staggered batch``: the make overhead alone) for comparison.
 
     python bench/bench_all.py [--repeats 3] [--no-make]
 """
@@ -287,7 +287,7 @@ def batch_table(with_make: bool) -> None:
                 check=False,
             )
             wall = time.perf_counter() - t
-            print(f"  make -j2 batch             {wall:6.2f} s  (exit {proc.returncode}; a process per stage)")
+            print(f"  make -j2 batch             {wall:6.2f} s  (exit {proc.returncode}; staggered batch through make)")
 
 
 def main(argv: list[str] | None = None) -> int:

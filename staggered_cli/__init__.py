@@ -18,6 +18,7 @@ what an edit cannot do as asked is a :class:`StaggeredWarning`.
 from .api import (
     add_layer,
     bake,
+    batch,
     constraints,
     cull,
     detail,
@@ -56,6 +57,7 @@ __all__ = [
     "info",
     "plot",
     "preview",
+    "batch",
     "StaggeredError",
     "DataError",
     "UsageError",

@@ -13,7 +13,7 @@ Nothing heavy is imported here: each function imports what it runs.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 from .errors import UsageError, arg
@@ -21,6 +21,7 @@ from .errors import UsageError, arg
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from .batching import Result as BatchResult
     from .model.document import Document
     from .motion import BvhMotion, MarkerMotion
 
@@ -232,13 +233,23 @@ def extract(
     True
     """
     from .motion import BvhMotion, MarkerMotion
-    from .ops.extract import MAX_EXTRACT_VALUES
+    from .ops.extract import MAX_EXTRACT_VALUES, check_options
     from .ops.extract import extract as op
 
     if not isinstance(motion, BvhMotion | MarkerMotion):
         what = type(motion).__name__
         hint = ": it is already a document" if what == "Document" else ""
         raise UsageError(f"{arg('motion')} must be a BVH or C3D clip (st.read), got {what}{hint}")
+    # the options before the clip (a batch checks them so, on no clip)
+    check_options(
+        smoothing=smoothing,
+        filter_width=filter_width,
+        refine_window=refine_window,
+        min_contact=min_contact,
+        contact_tolerance=contact_tolerance,
+        significance=significance,
+        min_spacing=min_spacing,
+    )
     if isinstance(motion, BvhMotion) and motion.channels.size > MAX_EXTRACT_VALUES:
         raise UsageError(
             f"{arg('motion')} has {motion.channels.size:,} channel values, more than extract's "
@@ -972,6 +983,143 @@ def _name_of(value) -> str:
     return getattr(value, "name", "") or getattr(value, "source_name", "") or ""
 
 
+# --------------------------------------------------------------------------- library
+
+
+def batch(
+    in_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    steps: Sequence[tuple[str, Mapping[str, Any]]] = (),
+    steps_bvh: Sequence[tuple[str, Mapping[str, Any]]] | None = None,
+    steps_c3d: Sequence[tuple[str, Mapping[str, Any]]] | None = None,
+    extract_opts: Mapping[str, Any] | None = None,
+    bake_opts: Mapping[str, Any] | None = None,
+    jobs: int = 1,
+    shard: str | tuple[int, int] | None = None,
+    force: bool = False,
+    dry_run: bool = False,
+    verbose: bool = False,
+    on_result: Callable[[BatchResult], None] | None = None,
+) -> list[BatchResult]:
+    """Extract, edit and bake every BVH and C3D under ``in_dir`` into the
+    same tree under ``out_dir``, in ``jobs`` worker processes.
+
+    Each file goes through ``bake(step_n(... step_1(extract(read(file)))))``
+    and is written atomically.  An output newer than its input is skipped
+    (unless ``force``); a file that fails leaves no output and the others go
+    on.  Every step and option is checked once, before any file is read.
+
+    Parameters
+    ----------
+    in_dir, out_dir : str or path-like
+        ``out_dir`` must not lie inside ``in_dir``.
+    steps : list of (str, dict)
+        Calls between extract and bake, for every file: the name of a
+        document -> document function of this module (``cull``,
+        ``edit_pose``, ``succession``, ``randomize``, ``add_layer``,
+        ``remove_layer``, ``detail``, ``constraints``) and its keywords,
+        e.g. ``[("cull", {"keep": "30%"})]``.
+    steps_bvh, steps_c3d : list of (str, dict), optional
+        The steps for BVH files, or for C3D files, instead of ``steps``
+        (a body part such as ``@left-arm`` names a skeleton's joint; C3D
+        files have markers).
+    extract_opts, bake_opts : dict, optional
+        Keywords of :func:`extract` and :func:`bake` (``{"fps": 30}``).
+    jobs : int
+        Worker processes (a crash in one fails its file only).
+    shard : str or (int, int), optional
+        ``"I/N"``: only the I-th of N parts of the file list, split by a
+        hash of each path, the same on every machine.
+    force : bool
+        Rebuild outputs that are up to date.
+    dry_run : bool
+        Check the steps and return what would be built (status ``todo``).
+    verbose : bool
+        Print what each stage did for each file on standard error, as files finish.
+    on_result : callable, optional
+        Called with each file's result as it finishes (in this process).
+
+    Returns
+    -------
+    list of Result
+        One per file, sorted by path: ``rel`` (the path under both
+        folders), ``status`` (``built``; ``unchanged``: the output holds the
+        input's bytes; ``skipped``: up to date; ``failed``), ``seconds``,
+        ``reason`` (why it failed), ``messages`` (warnings) and ``stages``
+        (one line per stage: what it did).
+
+    Raises
+    ------
+    UsageError
+        A bad step, option or folder, before any file is read.
+
+    Examples
+    --------
+    >>> import shutil, tempfile
+    >>> import staggered_cli as st
+    >>> library = tempfile.mkdtemp()
+    >>> _ = shutil.copy("data/samples/march.bvh", library)
+    >>> results = st.batch(library, "out/doctest/batch", force=True,
+    ...                    steps_bvh=[("cull", {"keep": "50%"}),
+    ...                               ("succession", {"joint": "@left-arm", "offset": 0.03, "clamp": True})],
+    ...                    bake_opts={"fps": 60})
+    >>> [(r.rel, r.status) for r in results]
+    [('march.bvh', 'built')]
+    >>> results[0].stages[1].split(",")[0]
+    'cull: 12 of 24 poses kept'
+    >>> st.read("out/doctest/batch/march.bvh").n_frames
+    241
+    >>> st.batch(library, "out/doctest/batch", steps=[("cull", {"keep": "0"})])
+    Traceback (most recent call last):
+    ...
+    staggered_cli.errors.UsageError: steps: step 1 ('cull'): keep must keep at least one pose, got '0'
+    """
+    import functools
+    import sys
+
+    from .batching import TODO, Plan, Result, check_call, check_steps, parse_shard, plan, run_batch
+
+    part = None if shard is None else parse_shard(shard)
+    if isinstance(steps, str) or isinstance(steps_bvh, str) or isinstance(steps_c3d, str):
+        raise UsageError(f"{arg('steps')} are (name, kwargs) pairs, e.g. [('cull', {{'keep': '30%'}})], not a string")
+    common = check_steps(steps, "steps")
+    todo_plan = Plan(
+        steps_bvh=common if steps_bvh is None else check_steps(steps_bvh, "steps_bvh"),
+        steps_c3d=common if steps_c3d is None else check_steps(steps_c3d, "steps_c3d"),
+        extract_opts=_checked_opts("extract", extract_opts, "extract_opts", check_call),
+        bake_opts=_checked_opts("bake", bake_opts, "bake_opts", check_call),
+    )
+    workers = int(jobs)
+    if workers < 1:
+        raise UsageError(f"{arg('jobs')} must be at least 1, got {jobs}")
+    todo, skipped = plan(os.fspath(in_dir), os.fspath(out_dir), force, shard=part)
+    if dry_run:
+        return sorted(skipped + [Result(job.rel, TODO) for job in todo], key=lambda r: r.rel)
+
+    def report(result: Result) -> None:
+        if verbose:
+            for line in result.stages:
+                print(f"{result.rel}: {line}", file=sys.stderr)
+        if on_result is not None:
+            on_result(result)
+
+    from .batching import run as _run
+
+    work = functools.partial(_run.run_file, plan=todo_plan)  # looked up now: tests wrap it to inject faults
+    results = skipped + run_batch(todo, work, workers, on_result=report)
+    return sorted(results, key=lambda r: r.rel)
+
+
+def _checked_opts(name: str, opts: Mapping[str, Any] | None, what: str, check) -> dict[str, Any]:
+    if opts is not None and not isinstance(opts, Mapping):
+        raise UsageError(f"{arg(what)} must be a dict of {name}'s keywords, got {type(opts).__name__}")
+    try:
+        return check(name, opts)
+    except UsageError as err:
+        raise UsageError(f"{arg(what)}: {err.message}") from None
+
+
 __all__ = [
     "read",
     "write",
@@ -990,4 +1138,5 @@ __all__ = [
     "info",
     "plot",
     "preview",
+    "batch",
 ]

@@ -19,7 +19,9 @@ rows) is resolved against the clip's own names by :func:`resolve`:
    ``@spine`` the lowest spine joint, ``@head`` the base of the neck.
 
 Anything else is a :class:`~staggered_cli.errors.UsageError` of one line
-that suggests the closest names (:mod:`difflib`).
+that suggests the closest names: those of the same side and body segment
+(``LeftArm`` -> ``UpperArm_L`` on a Bandai Namco skeleton), else by spelling
+(:mod:`difflib`).
 """
 
 from __future__ import annotations
@@ -67,9 +69,19 @@ def tokens(name: str) -> list[str]:
     for t in re.split(r"[^a-z0-9]+", s.lower()):
         if t and t not in _WORDS and t[0] in "lr" and t[1:] in _WORDS:
             out += [t[0], t[1:]]  # 3dsMax ``lhand``
+        elif t and t not in _WORDS and _side_word(t):
+            out += [_side_word(t), t[len(_side_word(t)) :]]  # ``leftelbow``
         elif t:
             out.append(t)
     return out
+
+
+def _side_word(t: str) -> str:
+    """``'left'`` or ``'right'`` when ``t`` is one of them glued to a body word."""
+    for word in ("left", "right"):
+        if t.startswith(word) and t[len(word) :] in _WORDS:
+            return word
+    return ""
 
 
 def side(name: str) -> str:
@@ -176,15 +188,96 @@ def resolve_name(name: str, names: Sequence[str], parents: np.ndarray | None = N
     return list(names)[resolve(name, names, parents, what=what)]
 
 
+#: Body segments a joint name may say, by its words: a joint is named for the
+#: bone it moves (CMU ``LeftArm``, Bandai ``UpperArm_L``) or for where it
+#: sits (3dsMax ``LeftShoulder``, GAMES-105 ``lElbow``), so some words say two.
+_SEGMENT_WORDS = {
+    "clavicle": {"clavicle"}, "collar": {"clavicle"}, "shoulder": {"clavicle", "upperarm"},
+    "arm": {"upperarm"}, "uparm": {"upperarm"}, "upperarm": {"upperarm"},
+    "forearm": {"forearm"}, "lowarm": {"forearm"}, "lowerarm": {"forearm"}, "elbow": {"forearm"},
+    "hand": {"hand"}, "wrist": {"hand"},
+    "finger": {"finger"}, "fingers": {"finger"}, "fingerbase": {"finger"}, "thumb": {"finger"}, "index": {"finger"},
+    "hip": {"thigh"}, "upleg": {"thigh"}, "upperleg": {"thigh"}, "thigh": {"thigh"},
+    "leg": {"shin"}, "lowleg": {"shin"}, "lowerleg": {"shin"}, "shin": {"shin"}, "calf": {"shin"}, "knee": {"shin"},
+    "foot": {"foot"}, "ankle": {"foot"}, "toe": {"toe"}, "toes": {"toe"}, "toebase": {"toe"},
+    "spine": {"spine"}, "back": {"spine"}, "lowerback": {"spine"}, "upperback": {"spine"}, "chest": {"spine"},
+    "torso": {"spine"}, "abdomen": {"spine"}, "waist": {"spine"}, "neck": {"neck"}, "head": {"head"},
+}
+#: When a name says several segments, the one furthest out along its limb wins
+#: (``LeftHandIndex1`` is a finger, ``lTorso_Clavicle`` a clavicle).
+_SEGMENT_ORDER = ("finger", "toe", "hand", "foot", "forearm", "upperarm", "clavicle", "shin", "thigh", "head", "neck")
+_NEIGHBOURS = {
+    frozenset(p)
+    for p in (
+        ("clavicle", "upperarm"), ("upperarm", "forearm"), ("forearm", "hand"), ("hand", "finger"),
+        ("thigh", "shin"), ("shin", "foot"), ("foot", "toe"), ("spine", "neck"), ("neck", "head"),
+    )
+}
+_COMPOUND = {"up", "upper", "low", "lower", "fore"}
+
+
+def segments(name: str) -> frozenset[str]:
+    """The body segments (``'upperarm'``, ``'shin'``, ...) a joint name says:
+    ``LeftArm`` and ``UpperArm_L`` -> ``{'upperarm'}``, ``LeftShoulder`` ->
+    ``{'clavicle', 'upperarm'}``, ``Root`` -> ``{}``."""
+    toks = tokens(name)
+    words = []
+    for i, t in enumerate(toks):
+        if t in _COMPOUND and i + 1 < len(toks) and toks[i + 1] in ("arm", "leg"):
+            continue
+        if t in ("arm", "leg", "base") and i and toks[i - 1] in _COMPOUND | {"toe", "finger"}:
+            t = toks[i - 1] + t
+        words.append(t)
+    found: set[str] = set()
+    for w in words:
+        found |= _SEGMENT_WORDS.get(w, set())
+    for seg in _SEGMENT_ORDER:  # the segment furthest out, with what its word also says
+        for w in words:
+            if seg in _SEGMENT_WORDS.get(w, ()):
+                return frozenset(_SEGMENT_WORDS[w])
+    return frozenset(found)
+
+
+def _by_meaning(name: str, names: Sequence[str], n: int = 3) -> list[str]:
+    """The names of the same side and body segment as ``name`` (then of a
+    neighbouring segment), closest spelling first; [] when ``name`` says no segment."""
+    want = segments(name)
+    if not want:
+        return []
+    where = side(name)
+    scored = []
+    for other in dict.fromkeys(names):
+        if where and side(other) != where:
+            continue
+        have = segments(other)
+        if have == want:
+            score = 3
+        elif have & want:
+            score = 2
+        elif any(frozenset((a, b)) in _NEIGHBOURS for a in want for b in have):
+            score = 1
+        else:
+            continue
+        spelling = difflib.SequenceMatcher(None, name.lower(), base_name(other).lower()).ratio()
+        scored.append((-score, -spelling, other))
+    return [other for *_, other in sorted(scored)[:n]]
+
+
 def unknown_message(name: str, names: Sequence[str], what: str = "joint") -> str:
     """``unknown joint 'LeftArmm' (did you mean: LeftArm, LeftForeArm?)``, or a
-    few of the names when none is close."""
-    lower = {}
-    for n in names:
-        lower.setdefault(n.lower(), n)
-        lower.setdefault(base_name(n).lower(), n)
-    close = difflib.get_close_matches(name.lower(), list(lower), n=6, cutoff=0.6)
-    near = list(dict.fromkeys(lower[c] for c in close))[:3]
+    few of the names when none is close.
+
+    Names of the same side and body segment come first (``LeftArm`` on a
+    Bandai Namco skeleton suggests ``UpperArm_L``), then close spellings.
+    """
+    near = _by_meaning(name, names) if what == "joint" else []
+    if not near:
+        lower = {}
+        for n in names:
+            lower.setdefault(n.lower(), n)
+            lower.setdefault(base_name(n).lower(), n)
+        close = difflib.get_close_matches(name.lower(), list(lower), n=6, cutoff=0.6)
+        near = list(dict.fromkeys(lower[c] for c in close))[:3]
     if near:
         return f"unknown {what} {name!r} (did you mean: {', '.join(near)}?)"
     shown = ", ".join(list(names)[:8]) + (", ..." if len(names) > 8 else "")

@@ -110,22 +110,35 @@ def _check_outputs(lib: Path, out: Path) -> None:
     assert left in ([], ["truncated.bvh.err"])
 
 
+def _statuses(stdout: str) -> dict[str, str]:
+    """file -> status from the summary table."""
+    lines = [line for line in stdout.splitlines() if not line.startswith("make: ")]
+    rows = {}
+    for line in lines[1:-1]:
+        rel, _, rest = line.partition("  ")
+        rows[rel.strip()] = rest.split()[0]
+    return rows
+
+
+#: bake(extract(x)) is x to the byte for a BVH; the C3D writer lays the file out anew
+FIRST = {rel: ("built" if rel.endswith(".c3d") else "unchanged") for rel in GOOD}
+
+
 @pytest.mark.skipif(MAKE is None, reason="GNU make is not installed")
 def test_make_batch_bakes_good_files_and_reports_the_broken_one(runs):
+    """``make batch`` is ``staggered batch`` (one implementation): same table, same rules."""
     root, lib, out = runs
     first, second, before, after = out["make"]
     assert first.returncode != 0, first.stdout + first.stderr
     _check_outputs(lib, root / "make")
-    assert (root / "make" / (BROKEN + ".err")).is_file()
-    summary = [line for line in first.stdout.splitlines() if "FAILED" in line]
-    assert len(summary) == 1, first.stdout
-    assert f"FAILED {BROKEN}:" in summary[0] and "line" in summary[0] and "values" in summary[0]
-    assert "make batch: 5 files, 1 failed" in first.stdout
+    assert _statuses(first.stdout) == {**FIRST, BROKEN: "failed"}, first.stdout
+    assert f"staggered: {BROKEN}: extract: line" in first.stderr
+    assert "5 files: 1 built, 3 unchanged, 0 skipped, 1 failed" in first.stdout
+    assert "with 2 jobs" in first.stdout  # make's -j2
     # second run: nothing rebuilt, the broken file tried (and reported) again
     assert second.returncode != 0
     assert after == before
-    assert "baked" not in second.stdout
-    assert f"FAILED {BROKEN}:" in second.stdout
+    assert "5 files: 0 built, 0 unchanged, 4 skipped, 1 failed" in second.stdout
 
 
 def test_cli_batch_bakes_good_files_and_reports_the_broken_one(runs):
@@ -133,15 +146,14 @@ def test_cli_batch_bakes_good_files_and_reports_the_broken_one(runs):
     first, second, before, after = out["cli"]
     assert first.exit_code == 1, first.output
     _check_outputs(lib, root / "cli")
+    assert _statuses(first.stdout) == {**FIRST, BROKEN: "failed"}, first.stdout
     rows = {line.split("  ")[0]: line for line in first.stdout.splitlines()}
-    for rel in GOOD:
-        assert rows[rel].split()[-2] == "done", first.stdout
     assert " failed " in rows[BROKEN] and "extract: line" in rows[BROKEN]
     assert f"staggered: {BROKEN}: extract: line" in first.stderr
-    assert "5 files: 4 done, 0 skipped, 1 failed" in first.stdout
+    assert "5 files: 1 built, 3 unchanged, 0 skipped, 1 failed" in first.stdout
     assert second.exit_code == 1
     assert after == before
-    assert "5 files: 0 done, 4 skipped, 1 failed" in second.stdout
+    assert "5 files: 0 built, 0 unchanged, 4 skipped, 1 failed" in second.stdout
 
 
 @pytest.mark.skipif(MAKE is None, reason="GNU make is not installed")
@@ -179,18 +191,21 @@ def test_steps_change_the_motion_and_cull_alone_does_not(tmp_path):
         assert (tmp_path / "make" / "walk.bvh").read_bytes() == (tmp_path / "stag" / "walk.bvh").read_bytes()
 
 
-def test_steps_hand_documents_over_and_bake_what_the_pipe_bakes(tmp_path):
-    """Between a file's steps the batch hands the Document over in memory
-    (no serializing, checking and parsing again); what it bakes is what the
-    commands piped through document files bake, to the byte, BVH and C3D."""
-    from staggered_cli import batch
-    from staggered_cli.cli.main import COMMANDS
-    from staggered_cli.model.document import Document
+def test_batch_bakes_what_the_pipe_bakes(tmp_path):
+    """A step parsed from --steps words becomes an API call; what the batch
+    bakes is what the commands piped through document files bake, to the
+    byte, BVH and C3D."""
+    from staggered_cli.batching import BUILT, Job, Plan, run_file
+    from staggered_cli.cli.batch import parse_steps
 
+    assert parse_steps("cull --keep 30%|succession --joint @left-arm --offset 0.03 --clamp") == [
+        ("cull", {"keep": "30%", "interval": None, "select": None, "add_time": [], "by": "error",
+                  "ignore_contacts": False}),
+        ("succession", {"offset": 0.03, "power": 1.0, "joint": "@left-arm", "chain": None, "poses": None,
+                        "time": None, "clamp": True}),
+    ]
     for name, steps in (("cmu_02_01_walk.bvh", STEPS), ("c3dorg_sample01_Eb015pi_walk.c3d", "cull --keep 30%")):
         src = mocap(name)
-        handed = batch._invoke("extract", ["-o", "-", "--", str(src)], b"", [], COMMANDS)
-        assert isinstance(handed, Document)
         doc = tmp_path / f"{name}.0.stag"
         assert CliRunner().invoke(cli, ["-q", "extract", str(src), "-o", str(doc)]).exit_code == 0
         for i, step in enumerate(steps.split("|")):
@@ -201,8 +216,9 @@ def test_steps_hand_documents_over_and_bake_what_the_pipe_bakes(tmp_path):
         piped = tmp_path / f"piped_{name}"
         assert CliRunner().invoke(cli, ["-q", "bake", str(doc), "-o", str(piped)]).exit_code == 0
         out = tmp_path / f"batch_{name}"
-        result = batch.run_file(batch.Job(name, str(src), str(out)), batch.parse_steps(steps, COMMANDS), COMMANDS)
-        assert result.status == batch.DONE, result.reason
+        calls = tuple(parse_steps(steps))
+        result = run_file(Job(name, str(src), str(out)), Plan(steps_bvh=calls, steps_c3d=calls))
+        assert result.status == BUILT, result.reason
         assert out.read_bytes() == piped.read_bytes(), name
 
 
@@ -289,9 +305,6 @@ needs_make = pytest.mark.skipif(
 )
 
 
-UNSUPPORTED = "file name not supported by make batch; use staggered batch"
-
-
 def _make_in(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     """The repository's Makefile run from ``cwd`` (a temporary folder: any
     stray file lands there, never in the checkout)."""
@@ -307,40 +320,29 @@ def _make_in(cwd: Path, *args: str) -> subprocess.CompletedProcess:
 
 
 def _usage_error(m: subprocess.CompletedProcess, needle: str) -> None:
+    """Exit 2, the message on one line (then make's own ``*** [batch] Error 2``)."""
     assert m.returncode == 2, (m.stdout, m.stderr)
-    lines = m.stderr.splitlines()
+    lines = [line for line in m.stderr.splitlines() if not line.startswith("make: *** ")]
     assert len(lines) == 1 and needle in lines[0], m.stderr
     assert m.stdout == ""
 
 
 @needs_make
-@pytest.mark.parametrize("which", ["IN", "OUT", "both"])
-def test_make_batch_refuses_whitespace_in_in_or_out(tmp_path, which):
+@pytest.mark.parametrize("name", ["in sp", "o$x", "a;b", "p=q", "c:d", "50%", "it's", 'q"', "h#1", "b\\s"])
+def test_make_batch_takes_any_folder_name(tmp_path, name):
+    """IN and OUT reach `staggered batch` as given: spaces and the characters
+    make or the shell would read ($ ; = : % ' " # \\) included."""
     work = tmp_path / "work"
     work.mkdir()
-    src = tmp_path / ("in sp" if which != "OUT" else "in")
+    src = tmp_path / f"{name} in"
     src.mkdir()
     shutil.copy(SAMPLES / "march.bvh", src / "march.bvh")
-    dst = tmp_path / ("out sp" if which != "IN" else "out")
-    m = _make_in(work, "-k", "batch", f"IN={src}", f"OUT={dst}")
-    _usage_error(m, "must not contain whitespace")
-    assert not dst.exists()
-    assert list(work.iterdir()) == []  # no stray sp/*.err where make ran
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"work", src.name})
-
-
-@needs_make
-@pytest.mark.parametrize("char", [";", "=", ":", "#", "$", '"', "%", "\\", "|", "*"])
-def test_make_batch_refuses_make_special_characters_in_in_or_out(tmp_path, char):
-    work = tmp_path / "work"
-    work.mkdir()
-    src = tmp_path / "in"
-    src.mkdir()
-    shutil.copy(SAMPLES / "march.bvh", src / "march.bvh")
-    m = _make_in(work, "-k", "batch", f"IN={src}", f"OUT={tmp_path / ('o' + char + 'x')}")
-    _usage_error(m, "must not contain any of")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["in", "work"]
-    assert list(work.iterdir()) == []
+    dst = tmp_path / f"{name} out"
+    m = _make_in(work, "batch", f"IN={src}", f"OUT={dst}", "STEPS=cull --keep 50%")
+    assert m.returncode == 0, (m.stdout, m.stderr)
+    assert (dst / "march.bvh").read_bytes().startswith(b"HIERARCHY")
+    assert "1 files: 0 built, 1 unchanged, 0 skipped, 0 failed" in m.stdout
+    assert list(work.iterdir()) == []  # nothing where make ran
 
 
 @needs_make
@@ -349,32 +351,29 @@ def test_make_batch_without_in_is_a_usage_error(tmp_path):
 
 
 @needs_make
-def test_make_batch_skips_and_reports_names_it_cannot_handle(tmp_path):
-    work = tmp_path / "work"
-    work.mkdir()
+def test_make_batch_passes_every_option(tmp_path):
+    """STEPS_BVH, STEPS_C3D, EXTRACT_OPTS, BAKE_OPTS, JOBS and FORCE reach the command."""
     src = tmp_path / "in"
-    good = ["a.bvh", "sub dir/b c.bvh"]
-    bad = ["x=y.bvh", "p;q.bvh", "sub dir/r$s.bvh", "t:u.bvh"]
-    for rel in good + bad:
-        (src / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(SAMPLES / "march.bvh", src / rel)
+    src.mkdir()
+    shutil.copy(SAMPLES / "march.bvh", src / "march.bvh")
+    shutil.copy(mocap("c3dorg_sample01_Eb015pi_walk.c3d"), src / "walk.c3d")
     dst = tmp_path / "out"
-    m = _make_in(work, "-j2", "-k", "batch", f"IN={src}", f"OUT={dst}")
-    assert m.returncode != 0, m.stdout + m.stderr
-    assert "recipe commences" not in m.stderr and "No rule" not in m.stderr, m.stderr
-    for rel in good:
-        assert (dst / rel).read_bytes().startswith(b"HIERARCHY"), rel
-    for rel in bad:
-        assert not (dst / rel).exists()
-        assert f"  FAILED {rel}: {UNSUPPORTED}" in m.stdout.splitlines(), m.stdout
-    assert f"make batch: 6 files, {len(bad)} failed" in m.stdout
-    assert list(work.iterdir()) == []
+    args = ["batch", f"IN={src}", f"OUT={dst}", "STEPS=cull --keep 1", "JOBS=2", "BAKE_OPTS=--fps 60",
+            "STEPS_BVH=cull --keep 50%|succession --joint @left-arm --offset 0.03 --clamp",
+            "STEPS_C3D=cull --keep 30%", "EXTRACT_OPTS=--min-spacing 0.15"]
+    m = _make_in(tmp_path, *args)
+    assert m.returncode == 0, (m.stdout, m.stderr)
+    assert "2 files: 2 built, 0 unchanged, 0 skipped, 0 failed" in m.stdout and "with 2 jobs" in m.stdout
+    assert read_bvh(str(dst / "march.bvh")).n_frames == 241  # 121 frames at 30 Hz -> 60 Hz
+    m = _make_in(tmp_path, *args)
+    assert "2 skipped" in m.stdout
+    m = _make_in(tmp_path, *args, "FORCE=1")
+    assert "2 files: 2 built" in m.stdout
 
 
 @needs_make
-def test_make_batch_counts_inputs_left_unbuilt_as_failed(tmp_path):
-    """Without -k make stops at the first failure: the files after it have
-    no output and are failures too, not silently left out of the count."""
+def test_make_batch_goes_on_after_a_failure(tmp_path):
+    """One broken file fails alone (no -k needed): the others are built, the exit code says it."""
     src = tmp_path / "in"
     src.mkdir()
     (src / "a_broken.bvh").write_bytes((SAMPLES / "march.bvh").read_bytes()[:5000])
@@ -383,8 +382,6 @@ def test_make_batch_counts_inputs_left_unbuilt_as_failed(tmp_path):
     dst = tmp_path / "out"
     m = _make_in(tmp_path, "batch", f"IN={src}", f"OUT={dst}")
     assert m.returncode != 0
-    lines = m.stdout.splitlines()
-    assert any(line.startswith("  FAILED a_broken.bvh: staggered: ") for line in lines), m.stdout
-    assert "  FAILED b.bvh: not built" in lines and "  FAILED c.bvh: not built" in lines, m.stdout
-    assert "make batch: 3 files, 3 failed" in m.stdout
-    assert not (dst / "b.bvh").exists()
+    assert _statuses(m.stdout) == {"a_broken.bvh": "failed", "b.bvh": "unchanged", "c.bvh": "unchanged"}
+    assert m.stderr.startswith("staggered: a_broken.bvh: extract: ")
+    assert not (dst / "a_broken.bvh").exists()

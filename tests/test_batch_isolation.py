@@ -1,16 +1,15 @@
 """``staggered batch`` survives its workers and does not outlive its parent.
 
-A worker is made to die for real by the test hook
-:data:`staggered_cli.batch.FAULT_ENV` (read only by batch workers, set only
-here): a segmentation fault (``ctypes.string_at(0)``), ``os._exit`` or
-SIGKILL (what the out-of-memory killer sends) before it reads a given file,
-or a hang.  The library is a temporary copy of small files of
+A worker is made to die for real by :mod:`tests.batch_faults`, which wraps
+the function the workers run on each file from outside the production code
+and then runs the command line: a segmentation fault
+(``ctypes.string_at(0)``), ``os._exit`` or SIGKILL (what the out-of-memory
+killer sends) before it reads a given file, or a hang.  The library is a temporary copy of small files of
 ../shared/mocap.
 """
 
 from __future__ import annotations
 
-import os
 import shutil
 import signal
 import subprocess
@@ -21,12 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from staggered_cli.batch import FAULT_ENV
 from staggered_cli.io.bvh import read_bvh
 
 from .conftest import mocap
 
-STAGGERED = Path(sys.executable).parent / "staggered"
+ROOT = Path(__file__).resolve().parents[1]
+#: ``staggered`` whose batch workers run tests.batch_faults' faults (the spec comes first)
+FAULTY = [sys.executable, "-c", "from tests.batch_faults import main; main()"]
 
 FILES = {
     "run.bvh": "bandai2_run_normal_001.bvh",
@@ -45,12 +45,11 @@ def _library(root: Path) -> Path:
 
 
 def _batch(lib: Path, out: Path, jobs: int, fault: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, FAULT_ENV: fault}
     return subprocess.run(
-        [str(STAGGERED), "batch", str(lib), str(out), "--jobs", str(jobs)],
+        [*FAULTY, fault, "batch", str(lib), str(out), "--jobs", str(jobs)],
         capture_output=True,
         text=True,
-        env=env,
+        cwd=ROOT,
         timeout=300,
     )
 
@@ -73,11 +72,11 @@ def test_a_dying_worker_fails_its_file_only(tmp_path, jobs):
     assert r.returncode == 1, r.stdout + r.stderr
     rows = _rows(r.stdout)
     assert set(rows) == set(FILES), r.stdout
-    assert rows["run.bvh"] == ("done", "")
+    assert rows["run.bvh"] == ("unchanged", "")  # bake(extract(x)) is x, to the byte
     assert rows["sub/idle.bvh"] == ("failed", "worker process died (SIGSEGV: a crash in native code)")
     assert rows["sub/walk.bvh"] == ("failed", "worker process died (SIGKILL: out of memory?)")
     assert rows["bow.bvh"] == ("failed", "worker process died (exit code 3)")
-    assert "4 files: 1 done, 0 skipped, 3 failed" in r.stdout
+    assert "4 files: 0 built, 1 unchanged, 0 skipped, 3 failed" in r.stdout
     # one stderr line per failed file, no traceback
     errors = r.stderr.splitlines()
     assert len(errors) == 3 and all(e.startswith("staggered: ") for e in errors), r.stderr
@@ -95,7 +94,7 @@ def test_the_pool_is_replaced_for_the_files_after_a_death(tmp_path):
     r = _batch(lib, tmp_path / "out", 1, "sub/walk.bvh=segv")
     rows = _rows(r.stdout)
     assert rows["sub/walk.bvh"][0] == "failed"
-    assert [rows[f][0] for f in ("run.bvh", "bow.bvh", "sub/idle.bvh")] == ["done"] * 3, r.stdout
+    assert [rows[f][0] for f in ("run.bvh", "bow.bvh", "sub/idle.bvh")] == ["unchanged"] * 3, r.stdout
 
 
 def _children(pid: int) -> list[int]:
@@ -120,14 +119,13 @@ def test_workers_end_with_their_parent(tmp_path, sig, code, fault):
     """Whether the batch is killed while its workers compute or while they
     write (a temporary file on disk), the workers end and leave no file behind."""
     lib = _library(tmp_path)
-    env = {**os.environ, FAULT_ENV: f"run.bvh={fault};bow.bvh={fault}"}
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [str(STAGGERED), "batch", str(lib), str(out), "--jobs", "2"],
+        [*FAULTY, f"run.bvh={fault};bow.bvh={fault}", "batch", str(lib), str(out), "--jobs", "2"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=env,
+        cwd=ROOT,
     )
     try:
         workers: list[int] = []

@@ -270,7 +270,8 @@ def test_one_batch_steps_serves_every_dev_skeleton():
             (lib / f.name).write_bytes(short_bvh(f.name, 10.0))
         r = CliRunner().invoke(cli, ["batch", str(lib), str(out), "--jobs", "2", "--steps", steps])
         assert r.exit_code == 0, r.stdout + r.stderr
-        assert "10 done, 0 skipped, 0 failed" in r.stdout
+        # the idle stance keeps only its end poses: nothing to stagger, its output is its input
+        assert "10 files: 9 built, 1 unchanged, 0 skipped, 0 failed" in r.stdout
         for f in files:
             src, baked = read_bvh(lib / f.name), read_bvh(out / f.name)
             sk = src.skeleton
@@ -280,3 +281,23 @@ def test_one_batch_steps_serves_every_dev_skeleton():
             change = np.abs(_joint_channels(baked, arm) - _joint_channels(src, arm)).max()
             if f.name != "games105_idle.bvh":  # an idle stance keeps only its end poses: nothing to stagger
                 assert change > 0.05, (f.name, change)  # degrees
+
+
+def test_unknown_names_suggest_the_same_side_and_segment_first():
+    """A name from another skeleton's scheme suggests this skeleton's joint
+    for the same bone: not the first joints, not a spelling cousin."""
+    bandai = read_bvh(mocap("bandai2_run_normal_001.bvh")).skeleton
+    with pytest.raises(UsageError) as err:
+        bandai.index("LeftArm")
+    assert err.value.message == "unknown joint 'LeftArm' (did you mean: UpperArm_L, Shoulder_L, LowerArm_L?)"
+    cmu = read_bvh(mocap("cmu_02_01_walk.bvh")).skeleton
+    with pytest.raises(UsageError) as err:
+        cmu.index("UpperArm_L")
+    assert err.value.message == "unknown joint 'UpperArm_L' (did you mean: LeftArm, LeftShoulder, LeftForeArm?)"
+    with pytest.raises(UsageError, match=r"did you mean: RightUpLeg, "):
+        cmu.index("UpperLeg_R")
+    with pytest.raises(UsageError, match=r"did you mean: LowerArm_L, "):
+        bandai.index("leftelbow")  # glued side word, joint named for where it sits
+    games = read_bvh(mocap("games105_idle.bvh")).skeleton
+    with pytest.raises(UsageError, match=r"did you mean: rHip, rKnee\?"):
+        games.index("RightUpLeg")

@@ -357,3 +357,42 @@ def _fsync_directory(directory: str) -> None:
         pass  # some filesystems refuse fsync on a directory; the data itself is synced
     finally:
         os.close(fd)
+
+
+def find_files(folder: str, extensions: tuple[str, ...]) -> list[str]:
+    """Paths, relative to ``folder`` and sorted, of the files under it whose
+    name ends (in any case) with one of ``extensions``.
+
+    Regular files and links to files, at any depth; links to folders are not
+    followed (as ``find -xtype f``).
+    """
+    found: list[str] = []
+    for root, dirs, names in os.walk(folder):
+        dirs.sort()
+        for name in names:
+            path = os.path.join(root, name)
+            if name.lower().endswith(extensions) and os.path.isfile(path):
+                found.append(os.path.relpath(path, folder))
+    return sorted(found)
+
+
+def same_bytes(path: str, data: bytes) -> bool:
+    """Whether the file at ``path`` holds exactly ``data`` (non-empty)."""
+    if not data or os.path.getsize(path) != len(data):
+        return False
+    with open(path, "rb") as fh:
+        return fh.read() == data
+
+
+def remove_quietly(path: str) -> None:
+    """Remove ``path`` if it is there and can be removed (an output left from
+    an earlier run that no longer matches its input); nothing else."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass  # nothing there (the usual case), or not removable: the failure itself is what gets reported
+
+
+def make_parent(path: str) -> None:
+    """Make the folder ``path`` goes into, with the folders above it."""
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)

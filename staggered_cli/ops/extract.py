@@ -427,6 +427,31 @@ def prune_refinements(
     return r
 
 
+def check_options(
+    *,
+    smoothing: float | None = None,
+    filter_width: float = DEFAULT_FILTER_WIDTH,
+    refine_window: float = DEFAULT_REFINE_WINDOW,
+    min_contact: float = contact_detection.DEFAULT_MIN_CONTACT,
+    contact_tolerance: float = contact_detection.DEFAULT_TOLERANCE,
+    significance: float = DEFAULT_SIGNIFICANCE,
+    min_spacing: float = DEFAULT_MIN_SPACING,
+) -> dict[str, float]:
+    """:func:`extract`'s numeric options, checked (``UsageError``) without a
+    clip: a batch checks its extract options so, once, before any file."""
+    return {
+        "smoothing": _check(
+            arg("smoothing"), DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
+        ),
+        "filter_width": _check(arg("filter_width"), filter_width, upper=MAX_FILTER_WIDTH),
+        "refine_window": _check(arg("refine_window"), refine_window, upper=MAX_REFINE_WINDOW),
+        "min_contact": _check(arg("min_contact"), min_contact, upper=MAX_MIN_CONTACT),
+        "contact_tolerance": _check(arg("contact_tolerance"), contact_tolerance, positive=True),
+        "significance": _check(arg("significance"), significance),
+        "min_spacing": _check(arg("min_spacing"), min_spacing, upper=MAX_MIN_SPACING),
+    }
+
+
 def extract(
     motion: BvhMotion | MarkerMotion,
     *,
@@ -467,13 +492,18 @@ def extract(
     ------
     UsageError for a bad option or an unknown contact joint.
     """
-    smoothing = _check(arg("smoothing"), DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING)
-    filter_width = _check(arg("filter_width"), filter_width, upper=MAX_FILTER_WIDTH)
-    refine_window = _check(arg("refine_window"), refine_window, upper=MAX_REFINE_WINDOW)
-    min_contact = _check(arg("min_contact"), min_contact, upper=MAX_MIN_CONTACT)
-    contact_tolerance = _check(arg("contact_tolerance"), contact_tolerance, positive=True)
-    significance = _check(arg("significance"), significance)
-    min_spacing = _check(arg("min_spacing"), min_spacing, upper=MAX_MIN_SPACING)
+    checked = check_options(
+        smoothing=smoothing,
+        filter_width=filter_width,
+        refine_window=refine_window,
+        min_contact=min_contact,
+        contact_tolerance=contact_tolerance,
+        significance=significance,
+        min_spacing=min_spacing,
+    )
+    smoothing, filter_width, refine_window = checked["smoothing"], checked["filter_width"], checked["refine_window"]
+    min_contact, contact_tolerance = checked["min_contact"], checked["contact_tolerance"]
+    significance, min_spacing = checked["significance"], checked["min_spacing"]
     T = motion.n_frames
     rate = float(motion.rate)
     size = motion.channels.size if isinstance(motion, BvhMotion) else motion.points.size
