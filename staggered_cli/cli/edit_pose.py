@@ -5,7 +5,6 @@ from __future__ import annotations
 import click
 
 from ..errors import StaggeredError, UsageError
-from ..motion import BvhMotion
 from .common import check_output, finite, name_list, read_document, triples, write_document
 from .options import force_option, format_option, input_argument, on_option, output_option
 
@@ -148,6 +147,8 @@ def edit_pose(
     pose_file = None
     if from_bvh is not None:  # read here, so that its errors name it as the command line gave it
         from .options import load_input
+
+        from ..motion import BvhMotion
 
         pose_file = load_input(from_bvh)
         if not isinstance(pose_file, BvhMotion):
