@@ -86,11 +86,6 @@ def constraints(
     changed document is written to -o (standard output by default), and
     --list/--json also print the new list when -o names a file.
     """
-    from dataclasses import replace
-
-    from ..contacts.constraint import Constraint
-    from ..ops.constraints import checked_span, redetect
-
     editing = bool(adds or removes or detect)
     if not detect and (contact_joints is not None or min_contact is not None or contact_tolerance is not None):
         raise click.UsageError("--contact-joints, --min-contact and --contact-tolerance go with --detect")
@@ -118,37 +113,21 @@ def constraints(
         click.echo(_json(doc.constraints) if as_json else _table(doc.constraints))
         return
 
-    cons = tuple(doc.constraints)
-    if detect:
-        joints = name_list(contact_joints)
-        if contact_joints is not None and not joints:
-            raise click.BadParameter(
-                "expected comma-separated joint names or marker labels", param_hint="--contact-joints"
-            )
-        cons = redetect(doc, joints, min_contact, contact_tolerance)
-    if removes:
-        n = len(cons)
-        bad = [k for k in removes if not -n <= k < n]
-        if bad:
-            from ..errors import UsageError
+    from ..api import constraints as op
 
-            raise UsageError(
-                f"no constraint {bad[0]} (the document has {n}: 0 to {n - 1})"
-                if n
-                else "the document has no constraints",
-                source="<stdin>" if input_path == STDIO else input_path,
-            )
-        drop = {k % n for k in removes}
-        if len(drop) < len(removes):
-            from ..errors import UsageError
-
-            twice = next(k for i, k in enumerate(removes) if k % n in {j % n for j in removes[:i]})
-            raise UsageError(f"--remove {twice}: constraint {twice % n} is named more than once")
-        cons = tuple(c for i, c in enumerate(cons) if i not in drop)
-    for joint, start, end in spans:
-        joint, start, end = checked_span(doc, joint, start, end)
-        cons = cons + (Constraint(joint, start, end, pin=True),)  # the user says it is planted
-    cons = tuple(sorted(cons, key=lambda c: (c.start, c.end, c.joint)))
-    write_document(replace(doc, constraints=cons), output, fmt, force)
+    joints = name_list(contact_joints)
+    if detect and contact_joints is not None and not joints:
+        raise click.BadParameter("expected comma-separated joint names or marker labels", param_hint="--contact-joints")
+    doc = op(
+        doc,
+        add=spans,
+        remove=list(removes),
+        detect=detect,
+        contact_joints=joints,
+        min_contact=min_contact,
+        contact_tolerance=contact_tolerance,
+    )
+    cons = doc.constraints
+    write_document(doc, output, fmt, force)
     if show or as_json:
         click.echo(_json(cons) if as_json else _table(cons))

@@ -146,9 +146,8 @@ def edit_pose(
     doc = read_document(input_path)
     pose_file = None
     if from_bvh is not None:  # read here, so that its errors name it as the command line gave it
-        from .options import load_input
-
         from ..motion import BvhMotion
+        from .options import load_input
 
         pose_file = load_input(from_bvh)
         if not isinstance(pose_file, BvhMotion):
