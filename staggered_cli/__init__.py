@@ -15,51 +15,10 @@ keywords.  Values are immutable.  Errors derive from :class:`StaggeredError`
 what an edit cannot do as asked is a :class:`StaggeredWarning`.
 """
 
-from .api import (
-    add_layer,
-    bake,
-    batch,
-    constraints,
-    cull,
-    detail,
-    edit_pose,
-    export_poses,
-    extract,
-    info,
-    new,
-    plot,
-    preview,
-    randomize,
-    read,
-    remove_layer,
-    succession,
-    write,
-)
+from . import api as _api
+from .api import *  # noqa: F403  (the public functions: api.__all__)
 from .errors import DataError, StaggeredError, StaggeredWarning, UsageError
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "read",
-    "write",
-    "extract",
-    "cull",
-    "edit_pose",
-    "succession",
-    "randomize",
-    "add_layer",
-    "remove_layer",
-    "detail",
-    "constraints",
-    "new",
-    "export_poses",
-    "bake",
-    "info",
-    "plot",
-    "preview",
-    "batch",
-    "StaggeredError",
-    "DataError",
-    "UsageError",
-    "StaggeredWarning",
-]
+__all__ = [*_api.__all__, "StaggeredError", "DataError", "UsageError", "StaggeredWarning"]
