@@ -53,7 +53,7 @@ def _timed(name: str, fn):
 
 
 # time the stages without touching the library: wrap what extract calls
-X.signals.local_evidence = _timed("evidence", X.signals.local_evidence)
+X.trails.local_evidence = _timed("evidence", X.trails.local_evidence)
 X.contact_detection.detect_contacts = _timed("contacts", X.contact_detection.detect_contacts)
 X.from_motion = _timed("fit", X.from_motion)
 
