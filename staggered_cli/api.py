@@ -941,7 +941,7 @@ def plot(
     >>> len(fig.axes) >= 1
     True
     """
-    from . import plots
+    from .pictures import preview as plots
 
     doc = _document(doc)
     return plots.plot_figure(
@@ -970,7 +970,7 @@ def preview(
     >>> len(fig.axes)
     8
     """
-    from . import plots
+    from .pictures import preview as plots
 
     if at not in ("poses", "frames"):
         raise UsageError(f"{arg('at')} must be 'poses' or 'frames', got {at!r}")

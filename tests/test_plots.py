@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from staggered_cli import plots
+from staggered_cli.pictures import preview as plots
 from staggered_cli.cli.main import cli
 from staggered_cli.cli.options import load_input
 from staggered_cli.cli.preview import join_at
@@ -23,7 +23,7 @@ from staggered_cli.io.container import document_bytes
 from staggered_cli.io.schema import to_parts
 from staggered_cli.model import document as D
 from staggered_cli.model import variables as V
-from staggered_cli.plots import gif_durations
+from staggered_cli.pictures.preview import gif_durations
 
 from .conftest import BVH_FILES, C3D_FILES, SAMPLES, dev_document, mocap, one_line_error
 

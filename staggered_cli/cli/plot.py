@@ -37,7 +37,7 @@ def plot(input_path, output, kind, joints, time, dpi, force):
     Rows are in hierarchy order (C3D markers from the highest down), times
     in seconds, angles in degrees; see the README's Pictures section.
     """
-    from .. import plots
+    from ..pictures import preview as plots
     from ..api import plot as op
     from ..io.files import display_name
 

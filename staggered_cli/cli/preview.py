@@ -94,7 +94,7 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
     chosen); a GIF animates the clip. A document is shown as it bakes.
     C3D markers are drawn as points.
     """
-    from .. import plots
+    from ..pictures import preview as plots
 
     check_picture_output(output, "a picture")
     check_output(output, force)

@@ -58,14 +58,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import quat
-from .errors import UsageError, arg
+from .. import quat
+from ..errors import UsageError, arg
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from .model.document import Document
-    from .motion import BvhMotion, MarkerMotion
+    from ..model.document import Document
+    from ..motion import BvhMotion, MarkerMotion
 
 #: The kinds of ``staggered plot``.
 KINDS = ("signals", "timing", "curves")
@@ -186,8 +186,8 @@ def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.nda
     into them, and for each bone whether it is on the figure's left.  BVH:
     the joints of the body proper and their End Sites (a static placeholder
     root would draw a bone from the origin); C3D: the markers, no bones."""
-    from .motion import BvhMotion
-    from .skeleton import body_joints, end_site_positions
+    from ..motion import BvhMotion
+    from ..skeleton import body_joints, end_site_positions
 
     if not isinstance(motion, BvhMotion):
         bones, left = marker_bones(motion.labels, motion.points)
@@ -219,13 +219,13 @@ def marker_bones(labels: Sequence[str], points: np.ndarray) -> tuple[np.ndarray,
     (:func:`~staggered_cli.ops.marker_chain.rigid_tree`, the tree a
     randomize or retime of all markers moves them by), so that each body
     segment's markers are joined and the segments joined where they meet."""
-    from .ops.marker_chain import rigid_tree
+    from ..ops.marker_chain import rigid_tree
 
     parents = rigid_tree(points)
     child = np.flatnonzero(parents >= 0)
     bones = np.column_stack([parents[child], child]).astype(int).reshape(-1, 2)
     if len(bones):  # the tree must join every marker: not with lines across the body
-        from .motion import MarkerMotion
+        from ..motion import MarkerMotion
 
         size = MarkerMotion(tuple(labels), points, 1.0).figure_height()
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
@@ -254,7 +254,7 @@ def _sides(names: Sequence[str]) -> list[str]:
 
 
 def _up(points: np.ndarray, size: float) -> np.ndarray:
-    from .contacts.detect import up_direction
+    from ..contacts.detect import up_direction
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN frames of a C3D with gaps
@@ -263,8 +263,8 @@ def _up(points: np.ndarray, size: float) -> np.ndarray:
 
 def _moving(doc: Document, variables: list[_Var]) -> np.ndarray:
     """(V,) bool: the variable moves in the source or has a refinement."""
-    from .model.kinds import ROTATION
-    from .model.variables import dense_variables
+    from ..model.kinds import ROTATION
+    from ..model.variables import dense_variables
 
     size = float(doc.source.figure_height())
     moving = []
@@ -282,7 +282,7 @@ def _moving(doc: Document, variables: list[_Var]) -> np.ndarray:
 def _order_key(doc: Document, variables: list[_Var]) -> np.ndarray:
     """Sort key of each variable: hierarchy order (BVH), or highest marker
     first (C3D)."""
-    from .model.kinds import TRANSLATION
+    from ..model.kinds import TRANSLATION
 
     if doc.kind == "bvh":
         return np.array([2 * v.target + (0 if v.kind == TRANSLATION else 1) for v in variables], dtype=float)
@@ -304,7 +304,7 @@ def _rows(doc: Document, joints: Sequence[str] | None, *, rotation_only: bool = 
     ``rotation_only`` when it has one).  Without ``joints``: every variable
     that moves.  Raises UsageError naming an unknown name.
     """
-    from .model.kinds import ROTATION
+    from ..model.kinds import ROTATION
 
     variables = _variables(doc)
     if joints:
@@ -652,8 +652,8 @@ def timing_figure(
 def _default_curves(doc: Document) -> list[_Var]:
     """The few variables that move most (rotations for BVH), preferring
     those with refinements, in hierarchy order."""
-    from .model.kinds import ROTATION
-    from .model.variables import dense_variables
+    from ..model.kinds import ROTATION
+    from ..model.variables import dense_variables
 
     variables = _variables(doc)
     w = _signal(doc, "weights", (len(variables),))
@@ -679,8 +679,8 @@ def _channels(doc: Document, v: _Var, motion) -> tuple[np.ndarray, list[str]]:
     """Values (T, C) of variable ``v`` in ``motion`` and channel labels: a
     BVH rotation as the joint's Euler channels (degrees, as written), a
     translation as its coordinates (file units)."""
-    from .model.kinds import ROTATION
-    from .motion import BvhMotion, position_columns, rotation_columns
+    from ..model.kinds import ROTATION
+    from ..motion import BvhMotion, position_columns, rotation_columns
 
     if isinstance(motion, BvhMotion):
         sk = motion.skeleton
@@ -729,8 +729,8 @@ def curves_figure(
     """
     from matplotlib.lines import Line2D
 
-    from .model.kinds import ROTATION
-    from .ops.bake import bake
+    from ..model.kinds import ROTATION
+    from ..ops.bake import bake
 
     lo, hi, span = _crowded_window(doc, time)
     scale = _crowding(doc, lo, hi)
@@ -830,9 +830,9 @@ class _Stick:
 
 
 def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
-    from .model.document import Document
-    from .motion import BvhMotion
-    from .ops.bake import bake
+    from ..model.document import Document
+    from ..motion import BvhMotion
+    from ..ops.bake import bake
 
     pose_t = None
     if isinstance(subject, Document):
@@ -914,7 +914,7 @@ def side_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
     ``LeftUpLeg``/``RightUpLeg``, ``UpperLeg_L``/``UpperLeg_R``, ``l asis``/
     ``r asis``, ``Male:LFWT``/``Male:RFWT`` (a leading L or R before capitals,
     when the mirrored label exists)."""
-    from .names import base_name, side, tokens
+    from ..names import base_name, side, tokens
 
     bases = [base_name(n) for n in names]
     have = set(bases)
@@ -1117,7 +1117,7 @@ def _frame_axes(ax, view: _View, cx: float, x: np.ndarray | None = None) -> None
 
 
 def _subjects(subject, compare, name: str | None, compare_name: str | None) -> list[_Stick]:
-    from .model.document import Document
+    from ..model.document import Document
 
     def label(s, n, fallback):
         if n:
@@ -1137,8 +1137,8 @@ def skeleton_difference(a, b) -> str | None:
     clips), in a few words, or None when they have the same joints (or
     markers) and sizes within 10 %: ``preview --compare`` warns, since
     the two drawings then do not line up joint for joint."""
-    from .model.document import Document
-    from .motion import BvhMotion
+    from ..model.document import Document
+    from ..motion import BvhMotion
 
     clips = [x.source if isinstance(x, Document) else x for x in (a, b)]
     names = [tuple(c.skeleton.names) if isinstance(c, BvhMotion) else tuple(c.labels) for c in clips]
@@ -1340,7 +1340,7 @@ def demo_pictures(
     default as :func:`curves_figure`) and ``preview.png`` (the document over
     its source clip) of ``doc`` into ``out_dir`` (created if needed) at a
     modest ``dpi``, small files for the README; returns the paths."""
-    from .io.files import write_atomic
+    from ..io.files import write_atomic
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,1 @@
+"""Pictures of staggered-pose documents (moved from ``plots.py``; being split by kind)."""
