@@ -941,10 +941,10 @@ def plot(
     >>> len(fig.axes) >= 1
     True
     """
-    from . import plots
+    from . import pictures
 
     doc = _document(doc)
-    return plots.plot_figure(
+    return pictures.plot_figure(
         doc, kind, name=name or doc.source_name, joints=_names(joints, "joints"), time=_span(time, "time")
     )
 
@@ -970,11 +970,11 @@ def preview(
     >>> len(fig.axes)
     8
     """
-    from . import plots
+    from . import pictures
 
     if at not in ("poses", "frames"):
         raise UsageError(f"{arg('at')} must be 'poses' or 'frames', got {at!r}")
-    return plots.preview_figure(
+    return pictures.preview_figure(
         value, compare=compare, at=at, count=count, name=name or _name_of(value), compare_name=compare_name
     )
 

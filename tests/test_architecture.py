@@ -2,7 +2,7 @@
 
 Arrows point inwards: the command line (``staggered_cli.cli``) is a face on
 the library; the library's outer modules (the package root, ``batch``,
-``plots``) use the file formats (``staggered_cli.io``) and the operations
+``pictures``) use the file formats (``staggered_cli.io``) and the operations
 (``staggered_cli.ops``), which use the model and the math (``model/`` and
 every other module of the package); never the other way.  The rules are
 one table, :data:`RULES`; the exceptions that still stand are
@@ -30,7 +30,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "entry": ("staggered_cli.__main__",),
     "cli": ("staggered_cli.cli",),
     "batching": ("staggered_cli.batching",),
-    "library": ("staggered_cli", "staggered_cli.api", "staggered_cli.plots"),
+    "library": ("staggered_cli", "staggered_cli.api", "staggered_cli.pictures"),
     "io": ("staggered_cli.io",),
     "ops": ("staggered_cli.ops",),
 }
@@ -190,12 +190,12 @@ def test_every_import_follows_the_arrows():
         ("staggered_cli.model.document", "staggered_cli.ops.cull", "staggered_cli.ops"),
         ("staggered_cli.ops.cull", "staggered_cli.io.schema", "staggered_cli.io"),
         ("staggered_cli.ops.bake", "staggered_cli.cli.common", "staggered_cli.cli"),
-        ("staggered_cli.quat", "staggered_cli.plots", "library"),
+        ("staggered_cli.quat", "staggered_cli.pictures", "library"),
         ("staggered_cli.io.bvh", "staggered_cli.api", "library"),
         ("staggered_cli.batching.run", "staggered_cli.ops.cull", "staggered_cli.ops"),
         ("staggered_cli.batching.steps", "staggered_cli.cli.batch", "staggered_cli.cli"),
         ("staggered_cli.ops.extract", "click", "click"),
-        ("staggered_cli.plots", "staggered_cli.cli.main", "staggered_cli.cli"),
+        ("staggered_cli.pictures.preview", "staggered_cli.cli.main", "staggered_cli.cli"),
     ],
 )
 def test_the_rules_catch_an_import_against_the_arrows(module, imported, rule):
@@ -211,7 +211,7 @@ def test_inward_imports_are_allowed():
     allowed = [
         ("staggered_cli.io.schema", "staggered_cli.model.document"),
         ("staggered_cli.ops.bake", "staggered_cli.model.evaluate"),
-        ("staggered_cli.plots", "staggered_cli.ops.bake"),
+        ("staggered_cli.pictures.curves", "staggered_cli.ops.bake"),
         ("staggered_cli.cli.bake", "staggered_cli.io.files"),
         ("staggered_cli.model.fit", "staggered_cli.quat_rows"),
     ]
@@ -235,7 +235,6 @@ PATH_METHODS = {"read_bytes", "write_bytes", "read_text", "write_text", "mkdir",
 
 #: Modules outside io that still touch files, (module, call): each with its reason.
 KNOWN_FILES: dict[tuple[str, str], str] = {
-    ("staggered_cli.plots", "out.mkdir"): "pictures() makes its output folder (the pictures module's to move)",
     ("staggered_cli.cli.main", "os.open"): "points stdout at os.devnull when the reader of a pipe is gone",
 }
 

@@ -1,4 +1,4 @@
-"""Pictures (plots.py) and the plot / preview commands, on real motion capture
+"""Pictures (staggered_cli.pictures) and the plot / preview commands, on real motion capture
 from ../shared/mocap: every kind renders for every file, pictures of
 different documents differ, GIFs animate, and errors are one line."""
 
@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from staggered_cli import plots
+from staggered_cli import pictures
 from staggered_cli.cli.main import cli
 from staggered_cli.cli.options import load_input
 from staggered_cli.cli.preview import join_at
@@ -23,7 +23,7 @@ from staggered_cli.io.container import document_bytes
 from staggered_cli.io.schema import to_parts
 from staggered_cli.model import document as D
 from staggered_cli.model import variables as V
-from staggered_cli.plots import gif_durations
+from staggered_cli.pictures import common, gif_durations, sticks
 
 from .conftest import BVH_FILES, C3D_FILES, SAMPLES, dev_document, mocap, one_line_error
 
@@ -98,28 +98,30 @@ def run(args):
 # ------------------------------------------------------------- every file, every kind
 
 
-@pytest.mark.parametrize("kind", plots.KINDS)
+@pytest.mark.parametrize("kind", pictures.KINDS)
 @pytest.mark.parametrize("name", ALL_FILES)
 def test_every_kind_renders(documents, name, kind):
     doc = documents(name)
-    data = plots.png_bytes(plots.plot_figure(doc, kind, name=name), TEST_DPI)
-    check_png(data, MIN_PLOT_BYTES, (int(plots.FIGSIZE[0] * TEST_DPI), int(plots.FIGSIZE[1] * TEST_DPI)))
+    data = pictures.png_bytes(pictures.plot_figure(doc, kind, name=name), TEST_DPI)
+    check_png(data, MIN_PLOT_BYTES, (int(pictures.FIGSIZE[0] * TEST_DPI), int(pictures.FIGSIZE[1] * TEST_DPI)))
 
 
 @pytest.mark.parametrize("name", ALL_FILES)
 def test_preview_renders(documents, name):
     doc = documents(name)
-    data = plots.png_bytes(plots.preview_figure(doc, name=name), TEST_DPI)
+    data = pictures.png_bytes(pictures.preview_figure(doc, name=name), TEST_DPI)
     check_png(data, MIN_PREVIEW_BYTES)
 
 
-@pytest.mark.parametrize("kind", plots.KINDS + ("preview",))
+@pytest.mark.parametrize("kind", pictures.KINDS + ("preview",))
 def test_pictures_of_different_documents_differ(documents, kind):
     a, b = documents("cmu_02_01_walk.bvh"), documents("bandai2_run_normal_001.bvh")
 
     def draw(doc):
-        fig = plots.preview_figure(doc, at="frames", count=8) if kind == "preview" else plots.plot_figure(doc, kind)
-        return plots.png_bytes(fig, TEST_DPI)
+        if kind == "preview":
+            return pictures.png_bytes(pictures.preview_figure(doc, at="frames", count=8), TEST_DPI)
+        fig = pictures.plot_figure(doc, kind)
+        return pictures.png_bytes(fig, TEST_DPI)
 
     assert differing(draw(a), draw(b)) > 0.02
 
@@ -131,18 +133,18 @@ def test_an_edit_shows_in_timing_and_curves(documents):
     loose = succession(doc, 0.03, 1.0, joint="LeftArm", clamp=True)
     for kind in ("timing", "curves"):
         opts = {"joints": ["LeftArm", "LeftForeArm", "LeftHand"]}
-        a = plots.png_bytes(plots.plot_figure(doc, kind, **opts), TEST_DPI)
-        b = plots.png_bytes(plots.plot_figure(loose, kind, **opts), TEST_DPI)
+        a = pictures.png_bytes(pictures.plot_figure(doc, kind, **opts), TEST_DPI)
+        b = pictures.png_bytes(pictures.plot_figure(loose, kind, **opts), TEST_DPI)
         assert differing(a, b) > 0.002, kind
 
 
 def test_signals_without_stored_signals_say_so():
     motion = load_input(str(mocap("bandai2_run_normal_001.bvh")))
     doc = V.from_motion(motion, np.arange(0.0, 2.0, 0.25))
-    fig = plots.signals_figure(doc)
+    fig = pictures.signals_figure(doc)
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
     assert any("no signals" in t for t in texts), texts
-    check_png(plots.png_bytes(fig, TEST_DPI), 10_000)
+    check_png(pictures.png_bytes(fig, TEST_DPI), 10_000)
 
 
 # ------------------------------------------------------------- rows, windows, views
@@ -150,7 +152,7 @@ def test_signals_without_stored_signals_say_so():
 
 def test_rows_follow_the_hierarchy_and_skip_what_never_moves(documents):
     doc = documents("bandai1_walk_normal_001.bvh")
-    rows = plots._rows(doc, None)
+    rows = common._rows(doc, None)
     names = [v.name for v in rows]
     # Bandai has position channels on every joint, constant but the hips'; its root is a static placeholder
     assert names[:3] == ["Hips.position", "Hips", "Spine"]
@@ -162,7 +164,7 @@ def test_rows_follow_the_hierarchy_and_skip_what_never_moves(documents):
 
 def test_c3d_rows_run_from_head_to_feet(documents):
     doc = documents("c3dorg_sample01_Eb015pi_walk.c3d")
-    rows = plots._rows(doc, None)
+    rows = common._rows(doc, None)
     pts = doc.source.points
     height = np.array([np.nanmedian(pts[:, v.target, 2]) for v in rows])  # Z up
     assert np.all(np.diff(height) <= 1e-9)
@@ -170,27 +172,27 @@ def test_c3d_rows_run_from_head_to_feet(documents):
 
 def test_joint_names_select_rows(documents):
     doc = documents("cmu_02_01_walk.bvh")
-    rows = plots._rows(doc, ["LeftArm", "Hips"])
+    rows = common._rows(doc, ["LeftArm", "Hips"])
     assert [v.name for v in rows] == ["Hips.position", "Hips", "LeftArm"]
-    assert [v.name for v in plots._rows(doc, ["Hips"], rotation_only=True)] == ["Hips"]
+    assert [v.name for v in common._rows(doc, ["Hips"], rotation_only=True)] == ["Hips"]
     with pytest.raises(UsageError, match="unknown joint 'Nope'"):
-        plots._rows(doc, ["LeftArm", "Nope"])
+        common._rows(doc, ["LeftArm", "Nope"])
 
 
 def test_time_window_must_meet_the_clip(documents):
     doc = documents("bandai2_run_normal_001.bvh")
-    assert plots._window(doc, (-1.0, 1.0)) == (0.0, 1.0)
-    assert plots._window(doc, (1.0, np.inf)) == (1.0, doc.duration)
+    assert common._window(doc, (-1.0, 1.0)) == (0.0, 1.0)
+    assert common._window(doc, (1.0, np.inf)) == (1.0, doc.duration)
     for bad in [(5.0, 6.0), (-2.0, -1.0), (1.0, 1.0)]:
         with pytest.raises(UsageError, match="outside the clip"):
-            plots._window(doc, bad)
+            common._window(doc, bad)
 
 
 def test_long_documents_show_their_first_poses_in_the_dope_sheet(documents):
     doc = documents("cmu_85_12_breakdance_long.c3d")
-    if doc.n_poses <= plots.MAX_TIMING_POSES:
+    if doc.n_poses <= pictures.MAX_TIMING_POSES:
         pytest.skip("not enough poses")
-    fig = plots.timing_figure(doc)
+    fig = pictures.timing_figure(doc)
     lo, hi = fig.axes[0].get_xlim()
     assert hi < doc.duration / 2
     assert "--time" in fig.get_suptitle()
@@ -209,8 +211,8 @@ def test_long_documents_show_their_first_poses_in_the_dope_sheet(documents):
 )
 def test_preview_finds_the_up_axis(name, up):
     motion = load_input(str(mocap(name)))
-    pts = plots._figure_points(motion)[0]
-    view = plots.view_axes(pts)
+    pts = sticks._figure_points(motion)[0]
+    view = pictures.view_axes(pts)
     np.testing.assert_allclose(view.up, up, atol=1e-12)
     basis = np.stack([view.up, view.forward, view.lateral])
     np.testing.assert_allclose(basis @ basis.T, np.eye(3), atol=1e-9)
@@ -220,8 +222,8 @@ def test_preview_finds_the_up_axis(name, up):
 def test_walks_are_seen_from_the_side(documents):
     """The side view looks across the direction of travel."""
     motion = load_input(str(mocap("cmu_02_01_walk.bvh")))
-    pts = plots._figure_points(motion)[0]
-    view = plots.view_axes(pts)
+    pts = sticks._figure_points(motion)[0]
+    view = pictures.view_axes(pts)
     root = pts[:, 0]
     travel = root[-1] - root[0]
     travel -= (travel @ view.up) * view.up
@@ -233,21 +235,21 @@ def test_walks_are_seen_from_the_side(documents):
 
 def test_preview_strip_has_at_most_twelve_panels(documents):
     doc = documents("cmu_01_01_forward_jumps.bvh")
-    assert doc.n_poses > plots.MAX_PANELS
-    fig = plots.preview_figure(doc)
-    assert len(fig.axes) == 2 * plots.MAX_PANELS
-    fig = plots.preview_figure(doc, at="frames", count=5)
+    assert doc.n_poses > pictures.MAX_PANELS
+    fig = pictures.preview_figure(doc)
+    assert len(fig.axes) == 2 * pictures.MAX_PANELS
+    fig = pictures.preview_figure(doc, at="frames", count=5)
     assert len(fig.axes) == 10
 
 
 def test_preview_compares_two_clips():
     motion = load_input(str(mocap("cmu_02_01_walk.bvh")))
     doc = make_document("cmu_02_01_walk.bvh")
-    fig = plots.preview_figure(doc, compare=motion, name="walk.stag", compare_name="walk.bvh")
+    fig = pictures.preview_figure(doc, compare=motion, name="walk.stag", compare_name="walk.bvh")
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert labels == ["walk.stag", "walk.bvh"]
-    alone = plots.png_bytes(plots.preview_figure(doc, name="walk.stag", compare_name="walk.bvh"), TEST_DPI)
-    both = plots.png_bytes(fig, TEST_DPI)
+    alone = pictures.png_bytes(pictures.preview_figure(doc, name="walk.stag", compare_name="walk.bvh"), TEST_DPI)
+    both = pictures.png_bytes(fig, TEST_DPI)
     assert alone != both
 
 
@@ -263,16 +265,16 @@ def gif_frames(data: bytes) -> tuple[int, list[int]]:
 
 def test_gif_animates_the_clip():
     motion = load_input(str(mocap("bandai2_run_normal_001.bvh")))  # 68 frames at 30 Hz
-    n, durations = gif_frames(plots.preview_gif(motion, dpi=40))
+    n, durations = gif_frames(pictures.preview_gif(motion, dpi=40))
     assert n == 34  # every other frame: 15 per second, real time
     assert all(60 <= d <= 70 for d in durations)
-    n, _ = gif_frames(plots.preview_gif(motion, count=6, dpi=40))
+    n, _ = gif_frames(pictures.preview_gif(motion, count=6, dpi=40))
     assert n == 6
 
 
 def test_gif_of_poses_holds_each_pose(documents):
     doc = documents("c3dorg_sample01_Eb015pi_walk.c3d")
-    n, durations = gif_frames(plots.preview_gif(doc, at="poses", dpi=40))
+    n, durations = gif_frames(pictures.preview_gif(doc, at="poses", dpi=40))
     assert n == doc.n_poses
     assert all(100 <= d <= 1000 for d in durations)
 
@@ -284,7 +286,7 @@ def test_demo_pictures_are_small(tmp_path):
     motion = load_input(str(SAMPLES / "march.bvh"))
     extract = _extract()
     doc = extract(motion, source_name="march.bvh") if extract else V.from_motion(motion, np.arange(0, 3.9, 0.25))
-    paths = plots.demo_pictures(doc, tmp_path, name="march.bvh")
+    paths = pictures.demo_pictures(doc, tmp_path, name="march.bvh")
     assert [p.name for p in paths] == ["signals.png", "timing.png", "curves.png", "preview.png"]
     for p in paths:
         check_png(p.read_bytes(), 10_000)
@@ -463,13 +465,13 @@ def test_preview_cameras_turn_with_the_heading(name, pairs, most_side):
     end, the 131_02 walk's 0.11-0.38, the breakdance's 0.59-13.8 at 9 of 12
     panels; turned with the heading, at most 0.11, 0.13 and 0.16."""
     motion = load_input(str(mocap(name)))
-    fig = plots.preview_figure(motion, at="frames", count=12)
-    stick = plots._stick(motion, "clip")
+    fig = pictures.preview_figure(motion, at="frames", count=12)
+    stick = sticks._stick(motion, "clip")
     idx = [(stick.names.index(a), stick.names.index(b)) for a, b in pairs]
     spread = _panel_spreads(fig, stick, idx)
     frames = stick.at(np.linspace(0, len(stick.points) - 1, 12) * stick.frame_time)
     assert len(frames) == len(spread)
-    view = plots.view_axes(stick.points)
+    view = pictures.view_axes(stick.points)
     d = np.stack([stick.points[frames, a] - stick.points[frames, b] for a, b in idx], axis=1)  # (12, P, 3)
     level = np.linalg.norm(d - (d @ view.up)[..., None] * view.up, axis=2) / np.linalg.norm(d, axis=2)
     upright = level.mean(axis=1) > 0.8  # the pairs lie level: not lying on the floor or upside down
@@ -493,9 +495,9 @@ def test_c3d_preview_joins_markers_and_keeps_them_in_their_panels():
     from matplotlib.collections import LineCollection
 
     motion = load_input(str(mocap("cmu_85_12_breakdance_long.c3d")))
-    fig = plots.preview_figure(motion, at="frames", count=12)
-    size = plots.view_axes(motion.points).size
-    bones, _ = plots.marker_bones(motion.labels, motion.points)
+    fig = pictures.preview_figure(motion, at="frames", count=12)
+    size = pictures.view_axes(motion.points).size
+    bones, _ = pictures.marker_bones(motion.labels, motion.points)
     assert len(bones) >= len(motion.labels) - 3  # nearly every marker joined (40 edges join 41)
     cut_before = 0
     for ax in fig.axes:

@@ -37,7 +37,7 @@ def plot(input_path, output, kind, joints, time, dpi, force):
     Rows are in hierarchy order (C3D markers from the highest down), times
     in seconds, angles in degrees; see the README's Pictures section.
     """
-    from .. import plots
+    from .. import pictures
     from ..api import plot as op
     from ..io.files import display_name
 
@@ -49,4 +49,4 @@ def plot(input_path, output, kind, joints, time, dpi, force):
         fig = op(doc, kind=kind, name=title_name(input_path), joints=name_list(joints), time=window)
     except StaggeredError as err:
         raise err.with_source(display_name(input_path)) from None
-    emit(output, plots.png_bytes(fig, dpi), force)
+    emit(output, pictures.png_bytes(fig, dpi), force)

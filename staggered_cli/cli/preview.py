@@ -94,7 +94,7 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
     chosen); a GIF animates the clip. A document is shown as it bakes.
     C3D markers are drawn as points.
     """
-    from .. import plots
+    from .. import pictures
 
     check_picture_output(output, "a picture")
     check_output(output, force)
@@ -105,7 +105,7 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
     subject = _subject(input_path)
     other = _subject(compare) if compare is not None else None
     if other is not None:
-        differs = plots.skeleton_difference(subject, other)
+        differs = pictures.skeleton_difference(subject, other)
         if differs:
             logging.getLogger("staggered_cli").warning(
                 "--compare %s is another figure than %s (%s): the drawings do not match joint for joint",
@@ -115,10 +115,10 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
             )
     names = {"name": title_name(input_path), "compare_name": title_name(compare) if compare else None}
     if gif:
-        data = plots.preview_gif(subject, compare=other, at=what or "frames", count=count, dpi=dpi or 80, **names)
+        data = pictures.preview_gif(subject, compare=other, at=what or "frames", count=count, dpi=dpi or 80, **names)
     else:
         from ..api import preview as op
 
         fig = op(subject, compare=other, at=what or "poses", count=count, **names)
-        data = plots.png_bytes(fig, dpi or plots.DPI)
+        data = pictures.png_bytes(fig, dpi or pictures.DPI)
     emit(output, data, force)
