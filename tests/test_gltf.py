@@ -29,7 +29,7 @@ from staggered_cli import quat
 from staggered_cli.cli.main import cli
 from staggered_cli.skeleton import end_site_positions, forward_kinematics
 
-from .conftest import C3D_FILES, dev_bake, dev_bvh_files, one_line_error
+from .conftest import C3D_FILES, dev_bake, dev_bvh_files, dev_document, one_line_error
 
 ROOT = Path(__file__).resolve().parent.parent
 TOOLS = ROOT / "tools" / "gltf"
@@ -74,22 +74,56 @@ class Gltf:
         return flat.reshape(acc.count, width).astype(np.float64)
 
     def tracks(self) -> tuple[np.ndarray, dict]:
-        """The animation's key times and {(node, path): (interpolation, values)}."""
+        """The animation's key times (of its first channel) and
+        {(node, path): (interpolation, values)}."""
+        return self.keyed()[0][0], {key: (how, v) for key, (_, how, v) in self.keyed()[1].items()}
+
+    def keyed(self) -> tuple[list, dict]:
+        """Each channel's key times, and {(node, path): (times, interpolation, values)}."""
         (anim,) = self.doc.animations
-        out, times = {}, None
+        out, times = {}, []
         for ch in anim.channels:
             sampler = anim.samplers[ch.sampler]
             t = self.array(sampler.input)[:, 0]
-            times = t if times is None else times
-            assert np.array_equal(t, times)
-            out[(ch.target.node, ch.target.path)] = (sampler.interpolation, self.array(sampler.output))
+            times.append(t)
+            out[(ch.target.node, ch.target.path)] = (t, sampler.interpolation, self.array(sampler.output))
         return times, out
 
-    def world(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sampled(self, at: np.ndarray) -> dict:
+        """{(node, path): values (T, D)} at times ``at``: keys of LINEAR and
+        STEP channels must be at those times; CUBICSPLINE is evaluated as
+        glTF defines it (cubic Hermite on the components, rotations then
+        normalized)."""
+        out = {}
+        for (node, path), (t, how, v) in self.keyed()[1].items():
+            if how != "CUBICSPLINE":
+                idx = np.searchsorted(t, at - 1e-6)
+                assert np.allclose(t[idx], at, atol=1e-5), "dense keys at the frames"
+                out[(node, path)] = v[idx]
+                continue
+            rows = v.reshape(len(t), 3, -1)
+            a, val, b = rows[:, 0], rows[:, 1], rows[:, 2]
+            k = np.clip(np.searchsorted(t, at, side="right") - 1, 0, len(t) - 1)
+            k1 = np.minimum(k + 1, len(t) - 1)
+            dt = t[k1] - t[k]
+            u = np.where(dt > 0, (np.clip(at, t[0], t[-1]) - t[k]) / np.where(dt > 0, dt, 1), 0.0)[:, None]
+            u2, u3 = u * u, u * u * u
+            p = (
+                (2 * u3 - 3 * u2 + 1) * val[k]
+                + (u3 - 2 * u2 + u) * b[k] * dt[:, None]
+                + (-2 * u3 + 3 * u2) * val[k1]
+                + (u3 - u2) * a[k1] * dt[:, None]
+            )
+            out[(node, path)] = p
+        return out
+
+    def world(self, at: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World positions (T, N, 3), rotations (T, N, 4, w first) and
-        scales (T, N) of every node at every key, by forward kinematics."""
+        scales (T, N) of every node at times ``at`` (default: the first
+        channel's keys), by forward kinematics."""
         nodes = self.doc.nodes
-        times, tracks = self.tracks()
+        times = self.keyed()[0][0] if at is None else np.asarray(at, dtype=float)
+        tracks = {key: (None, v) for key, v in self.sampled(times).items()}
         T, N = len(times), len(nodes)
         parent = np.full(N, -1)
         for i, n in enumerate(nodes):
@@ -360,8 +394,8 @@ def _validate(paths: list[Path]) -> list[dict]:
 
 @pytest.mark.gltf_validator
 def test_validator_passes_every_dense_output(tmp_path):
-    """0 errors and 0 warnings on the .glb of every dev BVH and C3D, their
-    bundled samples, and a .gltf (JSON) of each sample."""
+    """0 errors and 0 warnings on the .glb of every dev BVH and C3D, dense
+    and (BVH) pose keys, the bundled samples, and a .gltf (JSON) of each."""
     cmd = _validator()  # skip before the work when it is missing
     assert cmd
     paths = []
@@ -369,6 +403,12 @@ def test_validator_passes_every_dense_output(tmp_path):
     for name in names:
         path = tmp_path / (Path(name).stem + ".glb")
         path.write_bytes(glb_bytes(dev_bake(name)))
+        paths.append(path)
+    for name in dev_bvh_files():  # and the pose keys (CUBICSPLINE)
+        path = tmp_path / (Path(name).stem + "_poses.glb")
+        buffer = io.BytesIO()
+        st.write(dev_document(name), buffer, format="glb", keys="poses")
+        path.write_bytes(buffer.getvalue())
         paths.append(path)
     for sample in ("march.bvh", "march.c3d"):
         baked = st.bake(st.extract(st.read(SAMPLES / sample)))
@@ -386,3 +426,99 @@ def test_validator_passes_every_dense_output(tmp_path):
     data["animations"][0]["channels"][0]["target"]["node"] = 10_000
     broken.write_text(json.dumps(data))
     assert _validate([broken])[0]["errors"] > 0
+
+
+# --------------------------------------------------------------------------- --keys poses
+
+
+def _pose_errors(doc, gl: Gltf, scale: float) -> tuple[float, float, float]:
+    """Mean and max local rotation error (degrees) and max world position
+    error (fraction of the height) of the pose keys against ``bake --layers
+    splines``, at every frame."""
+    from staggered_cli.ops.bake import bake
+
+    smooth = bake(doc, layers="splines", ik=False)
+    sk = smooth.skeleton
+    times = np.arange(smooth.n_frames) * smooth.frame_time
+    sampled = gl.sampled(times)
+    want = smooth.local_rotations()
+    errors = []
+    for j in range(sk.n_joints):
+        if sk.has_rotation(j):
+            r = sampled[(j, "rotation")]
+            r = np.concatenate([r[:, 3:], r[:, :3]], axis=1)
+            r /= np.linalg.norm(r, axis=1, keepdims=True)
+            errors.append(np.degrees(quat.angle_between(r, want[:, j])))
+    errors = np.concatenate(errors)
+    pos = gl.world(times)[0][:, : sk.n_joints]
+    height = smooth.figure_height() * scale
+    return (
+        float(errors.mean()),
+        float(errors.max()),
+        float(np.max(np.abs(pos - smooth.world_positions() * scale)) / height),
+    )
+
+
+#: What --keys poses promises against bake --layers splines (docs/commands.md).
+POSE_MEAN_DEG, POSE_MAX_DEG, POSE_POSITION = 0.05, 8.0, 0.015
+
+
+@pytest.mark.parametrize("name", dev_bvh_files())
+def test_pose_keys_follow_the_splines(name):
+    """Each channel keyed at its variable's knots (the key counts are the
+    knot counts), and the motion they give within the stated error of the
+    spline layer."""
+    doc = dev_document(name)
+    gl = _pose_glb(doc)
+    _, keyed = gl.keyed()
+    for track in doc.tracks:
+        path = "rotation" if track.kind == "rotation" else "translation"
+        for i in range(track.n_vars):
+            t, how, _ = keyed[(int(track.targets[i]), path)]
+            assert how == "CUBICSPLINE"
+            np.testing.assert_allclose(t, track.knots.t[track.knots.of(i)], atol=1e-6)
+    mean, worst, position = _pose_errors(doc, gl, _unit(name))
+    assert mean < POSE_MEAN_DEG and worst < POSE_MAX_DEG and position < POSE_POSITION, (mean, worst, position)
+
+
+def _pose_glb(doc) -> Gltf:
+    data = io.BytesIO()
+    st.write(doc, data, format="glb", keys="poses")
+    return Gltf(data.getvalue())
+
+
+def test_edits_show_in_the_pose_keys():
+    """succession shifts the arm's keys to the new knot times; edit-pose
+    --rotate changes the elbow's key at the edited pose and nowhere else."""
+    doc = st.cull(st.extract(st.read(SAMPLES / "march.bvh")), keep=12)
+    j = doc.source.skeleton.index("LeftForeArm")
+    before = _pose_glb(doc).keyed()[1][(j, "rotation")]
+    later = st.succession(doc, joint="LeftArm", offset=0.05)
+    moved = _pose_glb(later).keyed()[1][(j, "rotation")]
+    # each inner pose: an editing key at its time, and its extreme 0.05 s later (depth 1 below LeftArm)
+    track = next(t for t in later.tracks if t.kind == "rotation")
+    editing = track.knots.editing[track.knots.of(track.index("LeftForeArm"))]
+    assert len(moved[0]) == len(editing) == len(before[0]) + (len(before[0]) - 2)
+    np.testing.assert_allclose(moved[0][editing], before[0][1:-1], atol=1e-6)
+    np.testing.assert_allclose(moved[0][~editing][1:-1], before[0][1:-1] + 0.05, atol=1e-6)
+    edited = st.edit_pose(doc, 5, rotate={"LeftForeArm": (0, 0, 30)})
+    after = _pose_glb(edited).keyed()[1][(j, "rotation")]
+    np.testing.assert_array_equal(after[0], before[0])
+    keys_before, keys_after = before[2].reshape(-1, 3, 4)[:, 1], after[2].reshape(-1, 3, 4)[:, 1]
+    angle = np.degrees(quat.angle_between(keys_before[:, [3, 0, 1, 2]], keys_after[:, [3, 0, 1, 2]]))
+    track = next(t for t in doc.tracks if t.kind == "rotation")
+    pose = track.knots.pose[track.knots.of(track.index("LeftForeArm"))]
+    assert np.all(angle[pose == 5] > 25) and np.all(angle[pose != 5] < 1e-3), (angle, pose)
+
+
+def test_pose_keys_refuse_stacked_layers_and_c3d(tmp_path):
+    doc = st.extract(st.read(SAMPLES / "march.bvh"))
+    stacked = st.add_layer(doc, keep=4)
+    with pytest.raises(st.UsageError, match="2 layers"):
+        st.write(stacked, tmp_path / "x.glb", keys="poses")
+    with pytest.raises(st.UsageError, match="keys"):
+        st.write(doc, tmp_path / "x.glb")  # a document as glTF: its pose keys only
+    c3d = st.extract(st.read(SAMPLES / "march.c3d"))
+    with pytest.raises(st.UsageError, match="BVH document"):
+        st.write(c3d, tmp_path / "x.glb", keys="poses")
+    assert not list(tmp_path.iterdir())

@@ -41,10 +41,12 @@ from .options import force_option, input_argument, output_option
 )
 @click.option(
     "--keys",
-    type=click.Choice(["dense"]),
+    type=click.Choice(["dense", "poses"]),
     default="dense",
     show_default=True,
-    help="glTF output: 'dense' keys every frame (LINEAR), the baked motion exactly.",
+    help="glTF output: 'dense' keys every frame (LINEAR), the baked motion exactly; 'poses' keys each "
+    "joint at its own knots (the staggered poses, CUBICSPLINE) following the splines: the displacement "
+    "maps and the contact layer are not in these keys (BVH documents of one layer).",
 )
 @force_option
 def bake(input_path, output, fps, layers, no_ik, ik_blend, move_plants, unit_scale, keys, force):
@@ -73,8 +75,20 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, move_plants, unit_sca
         raise click.BadParameter("applies to glTF output (-o NAME.glb or NAME.gltf)", param_hint="--unit-scale")
     if scale is not None and scale <= 0:
         raise click.BadParameter(f"must be positive (metres per unit), got {unit_scale}", param_hint="--unit-scale")
+    if keys != "dense" and not as_gltf:
+        raise click.BadParameter("applies to glTF output (-o NAME.glb or NAME.gltf)", param_hint="--keys")
     doc = read_document(input_path)
     check_motion_output(doc.kind, output)
+    if keys == "poses":
+        from ..io.formats import pieces
+        from ..io.gltf import unit_scale_for
+        from .options import emit
+
+        if scale is None and doc.kind == "bvh":
+            scale, why = unit_scale_for(doc.source)
+            note(why)
+        emit(output, pieces(doc, name=output, keys="poses", unit_scale=scale), force)
+        return
     motion = op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend, move_plants=move_plants)
     if not as_gltf:
         write_motion(motion, output, force)

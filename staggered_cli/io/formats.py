@@ -231,6 +231,13 @@ def pieces(value, fmt: str | None = None, name: str = STDIO, **gltf) -> list | b
         from .container import document_pieces
         from .schema import to_parts
 
+        if gltf_format(fmt if fmt in GLTF_FORMATS else None, name) is not None:
+            if gltf.get("keys") != "poses":
+                raise UsageError(f"a document is written as glTF with {arg('keys')} 'poses' (bake it for its motion)")
+            from .gltf import gltf_pieces
+
+            binary = gltf_format(fmt if fmt in GLTF_FORMATS else None, name) == "glb"
+            return gltf_pieces(value.source, binary=binary, document=value, **gltf)
         if gltf:
             raise UsageError(f"{arg(next(iter(gltf)))} applies to glTF output (a motion written as .glb or .gltf)")
         manifest, arrays = to_parts(value)
@@ -258,7 +265,8 @@ def check_name_for(value, output: str) -> None:
     from ..model.document import Document
 
     if isinstance(value, Document):
-        check_document_name(output)
+        if kind_in_name(output) != "gltf":  # a document's pose keys may be written as glTF
+            check_document_name(output)
     else:
         from ..motion import BvhMotion
 

@@ -47,7 +47,7 @@ HUMAN_HEIGHT = (1.0, 2.2)
 SANE_HEIGHT = (0.01, 1000.0)
 #: Words of C3D's POINT:UNITS, metres per unit.
 C3D_UNITS = {"mm": 0.001, "cm": 0.01, "m": 1.0, "in": 0.0254, "inch": 0.0254, "dm": 0.1}
-KEYS = ("dense",)
+KEYS = ("dense", "poses")
 _FLOAT, _USHORT = 5126, 5123
 _ARRAY_BUFFER = 34962
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -103,25 +103,31 @@ def gltf_pieces(
     binary: bool = True,
     unit_scale: float | None = None,
     keys: str = "dense",
+    document=None,
 ) -> list[bytes]:
     """The bytes of ``motion`` as a glTF 2.0 file: binary (.glb) or JSON
     with the buffer embedded as base64 (.gltf).
 
     ``unit_scale``: metres per file unit (default :func:`unit_scale_for`).
-    ``keys``: ``"dense"``, a key at every frame.  ``DataError`` if a value
-    is not finite or does not fit glTF's 32-bit floats.
+    ``keys``: ``"dense"``, a key at every frame, LINEAR; ``"poses"``, the
+    staggered poses of ``document`` (a BVH document of one layer; ``motion``
+    gives its skeleton), each variable keyed at its own knots, CUBICSPLINE
+    (:mod:`staggered_cli.model.hermite_keys`).  ``DataError`` if a value is
+    not finite or does not fit glTF's 32-bit floats.
     """
     import pygltflib as g
 
     if keys not in KEYS:
         raise UsageError(f"{arg('keys')} must be one of {', '.join(KEYS)}, got {keys!r}")
+    if keys == "poses" and (document is None or not isinstance(motion, BvhMotion)):
+        raise UsageError(f"{arg('keys')} poses writes the staggered poses of a BVH document (a C3D's: dense)")
     values = motion.channels if isinstance(motion, BvhMotion) else getattr(motion, "points", None)
     if values is not None and not np.all(np.isfinite(values) | np.isnan(values) * isinstance(motion, MarkerMotion)):
         raise DataError("the motion has values that are not finite: nothing to write")
     scale = unit_scale_for(motion)[0] if unit_scale is None else check_unit_scale(motion, unit_scale)
     out = _Builder(g, motion.frame_time, motion.n_frames)
     if isinstance(motion, BvhMotion):
-        _skeleton(out, motion, scale)
+        _skeleton(out, motion, scale, document if keys == "poses" else None)
     elif isinstance(motion, MarkerMotion):
         _markers(out, motion, scale)
     else:
@@ -205,7 +211,7 @@ def _xyzw(q_wxyz: np.ndarray) -> np.ndarray:
     return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
-def _skeleton(out: _Builder, motion: BvhMotion, scale: float) -> None:
+def _skeleton(out: _Builder, motion: BvhMotion, scale: float, document=None) -> None:
     g, doc = out.g, out.doc
     sk = motion.skeleton
     J, E = sk.n_joints, len(sk.end_parents)
@@ -232,6 +238,9 @@ def _skeleton(out: _Builder, motion: BvhMotion, scale: float) -> None:
     doc.scenes.append(g.Scene(nodes=roots + ([mesh_node] if mesh_node is not None else [])))
     doc.scene = 0
 
+    if document is not None:
+        _pose_keys(out, document, scale)
+        return
     moved = [j for j in range(J) if sk.has_position(j)]
     if moved:
         translations = motion.local_translations(np.array(moved)) * scale
@@ -240,6 +249,25 @@ def _skeleton(out: _Builder, motion: BvhMotion, scale: float) -> None:
     turned = [j for j in range(J) if sk.has_rotation(j)]
     for j, column in zip(turned, motion.local_rotation_columns(np.array(turned)), strict=True):
         out.animate(j, "rotation", _xyzw(np.asarray(column)), "VEC4")
+
+
+def _pose_keys(out: _Builder, document, scale: float) -> None:
+    """One CUBICSPLINE channel per variable of the document, keyed at its knots."""
+    from ..model.hermite_keys import pose_keys
+    from ..model.kinds import ROTATION
+
+    g = out.g
+    for keys in pose_keys(document):
+        rows = np.stack([keys.tangent_in, keys.values, keys.tangent_out], axis=1)  # (K, 3, D)
+        if keys.kind == ROTATION:
+            rows, kind, path = np.concatenate([rows[..., 1:], rows[..., :1]], axis=-1), "VEC4", "rotation"
+        else:
+            rows, kind, path = rows * scale, "VEC3", "translation"
+        time = out.accessor(keys.times, "SCALAR", bounds=True)
+        output = out.accessor(rows.reshape(-1, rows.shape[-1]), kind)
+        out.samplers.append(g.AnimationSampler(input=time, output=output, interpolation="CUBICSPLINE"))
+        target = g.AnimationChannelTarget(node=keys.target, path=path)
+        out.channels.append(g.AnimationChannel(sampler=len(out.samplers) - 1, target=target))
 
 
 def _bone_mesh(out: _Builder, rest: np.ndarray, parents: np.ndarray) -> int | None:
