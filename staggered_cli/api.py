@@ -166,8 +166,12 @@ def write(
         glTF only: metres per file unit (glTF is in metres).  The default is
         the C3D's POINT:UNITS, else the unit (m, cm, mm, CMU's 1/0.45 inch,
         inch, dm) that makes the figure 1.0 to 2.2 m tall.
-    keys : {"dense"}, optional
-        glTF only: ``"dense"`` (the default) keys every frame, LINEAR.
+    keys : {"dense", "poses"}, optional
+        glTF only: ``"dense"`` (the default, for a motion) keys every frame,
+        LINEAR.  ``"poses"`` (for a BVH document of one layer) keys each
+        joint at its own knots of the staggered poses, CUBICSPLINE, fitted
+        to follow the splines (displacement maps and contacts are not in
+        these keys).
 
     Raises
     ------
@@ -194,6 +198,11 @@ def write(
     >>> st.write(st.read("data/samples/march.bvh"), "out/doctest/march.glb", force=True)
     >>> Path("out/doctest/march.glb").read_bytes()[:4]
     b'glTF'
+
+    Or the staggered poses of a document as keys (each joint at its own times):
+
+    >>> st.write(st.extract(st.read("data/samples/march.bvh")), "out/doctest/march_poses.glb",
+    ...          keys="poses", force=True)
     """
     from .io.formats import write as io_write
 

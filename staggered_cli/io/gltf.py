@@ -121,8 +121,11 @@ def gltf_pieces(
         raise UsageError(f"{arg('keys')} must be one of {', '.join(KEYS)}, got {keys!r}")
     if keys == "poses" and (document is None or not isinstance(motion, BvhMotion)):
         raise UsageError(f"{arg('keys')} poses writes the staggered poses of a BVH document (a C3D's: dense)")
-    values = motion.channels if isinstance(motion, BvhMotion) else getattr(motion, "points", None)
-    if values is not None and not np.all(np.isfinite(values) | np.isnan(values) * isinstance(motion, MarkerMotion)):
+    if isinstance(motion, BvhMotion):
+        finite = np.all(np.isfinite(motion.channels))
+    else:  # a C3D's gaps are NaN: only an infinity is wrong
+        finite = not np.any(np.isinf(getattr(motion, "points", np.zeros(0))))
+    if not finite:
         raise DataError("the motion has values that are not finite: nothing to write")
     scale = unit_scale_for(motion)[0] if unit_scale is None else check_unit_scale(motion, unit_scale)
     out = _Builder(g, motion.frame_time, motion.n_frames)
@@ -325,8 +328,7 @@ def _markers(out: _Builder, motion: MarkerMotion, scale: float) -> None:
         p = pts[:, m] @ turn.T * scale
         seen = np.all(np.isfinite(p), axis=1)
         held = _hold(p, seen)
-        node = out.node(motion.labels[m] or f"marker{m}", translation=[float(x) for x in held[0]])
-        assert node == m + 1
+        node = out.node(motion.labels[m] or f"marker{m}", translation=[float(x) for x in held[0]])  # m + 1
         out.animate(node, "translation", held, "VEC3")
         if not seen.all():
             doc.nodes[node].scale = [float(seen[0])] * 3
