@@ -522,3 +522,13 @@ def test_pose_keys_refuse_stacked_layers_and_c3d(tmp_path):
     with pytest.raises(st.UsageError, match="BVH document"):
         st.write(c3d, tmp_path / "x.glb", keys="poses")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("option", [["--fps", "60"], ["--no-ik"], ["--layers", "splines"]])
+def test_pose_keys_refuse_bake_options(tmp_path, option):
+    doc = tmp_path / "march.stag"
+    st.write(st.extract(st.read(SAMPLES / "march.bvh")), doc)
+    out = tmp_path / "x.glb"
+    result = CliRunner().invoke(cli, ["bake", str(doc), "--keys", "poses", "-o", str(out), *option])
+    one_line_error(result, 2, "--keys", option[0])
+    assert not out.exists()

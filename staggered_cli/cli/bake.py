@@ -77,6 +77,21 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, move_plants, unit_sca
         raise click.BadParameter(f"must be positive (metres per unit), got {unit_scale}", param_hint="--unit-scale")
     if keys != "dense" and not as_gltf:
         raise click.BadParameter("applies to glTF output (-o NAME.glb or NAME.gltf)", param_hint="--keys")
+    if keys == "poses":  # the keys are the document's knots: no bake options shape them
+        given = [
+            o
+            for o, on in (
+                ("--fps", fps),
+                ("--layers", layers != "all"),
+                ("--no-ik", no_ik),
+                ("--move-plants", move_plants),
+            )
+            if on
+        ]
+        if given:
+            raise click.BadParameter(
+                f"poses keys the knots of the splines: {given[0]} does not apply", param_hint="--keys"
+            )
     doc = read_document(input_path)
     check_motion_output(doc.kind, output)
     if keys == "poses":
