@@ -393,7 +393,7 @@ def _validate(paths: list[Path]) -> list[dict]:
 
 
 @pytest.mark.gltf_validator
-def test_validator_passes_every_dense_output(tmp_path):
+def test_validator_passes_every_output(tmp_path):
     """0 errors and 0 warnings on the .glb of every dev BVH and C3D, dense
     and (BVH) pose keys, the bundled samples, and a .gltf (JSON) of each."""
     cmd = _validator()  # skip before the work when it is missing
