@@ -4,6 +4,7 @@
 # make bench  run every bench/*.py
 # make golden regenerate tests/golden/ on purpose (tests never do)
 # make test-blender  set up .venv-blender (Python 3.11, bpy 5.0.1) and run the Blender round trip tests
+# make test-gltf  install node (apt, as root, if missing) and the Khronos glTF-Validator (tools/gltf), run its tests
 # make batch  IN=dir OUT=dir [STEPS='cull --keep 30%|...']: staggered batch over a library
 
 SHELL := /bin/bash
@@ -20,7 +21,7 @@ PYTEST_ARGS ?=
 # (its module fixtures are built once); TEST_WORKERS=0 runs them in this one
 TEST_WORKERS ?= 2
 
-.PHONY: all demo test test-blender lint bench golden install clean batch samples pictures
+.PHONY: all demo test test-blender test-gltf lint bench golden install clean batch samples pictures
 
 all: test
 
@@ -57,6 +58,24 @@ $(BLENDER_STAMP): pyproject.toml
 
 test-blender: $(BLENDER_STAMP)
 	$(BLENDER_VENV)/bin/python -m pytest tests/blender $(PYTEST_ARGS)
+
+# The Khronos glTF-Validator (npm package gltf-validator, pinned in
+# tools/gltf/package-lock.json) checks every glTF the tests write.  node and
+# npm come from apt where they are missing (as root; otherwise it says so).
+GLTF_TOOLS := tools/gltf
+GLTF_STAMP := $(GLTF_TOOLS)/node_modules/.staggered-installed
+
+$(GLTF_STAMP): $(GLTF_TOOLS)/package.json $(GLTF_TOOLS)/package-lock.json
+	@if ! command -v node >/dev/null || ! command -v npm >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y nodejs npm; \
+	  else echo "node and npm are missing: install them (Debian: apt-get install -y nodejs npm, as root)" >&2; exit 1; fi; \
+	fi
+	cd $(GLTF_TOOLS) && npm ci --no-audit --no-fund
+	touch $@
+
+test-gltf: $(STAMP) $(GLTF_STAMP)
+	@$(BYTECODE)
+	GLTF_VALIDATOR_REQUIRED=1 $(BIN)/python -m pytest -n 0 -m gltf_validator tests/test_gltf.py $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -138,9 +138,16 @@ def read(source: str | os.PathLike | bytes | BinaryIO) -> Motion | Document:
 
 
 def write(
-    value: Document | Motion, dest: str | os.PathLike | BinaryIO, *, format: str | None = None, force: bool = False
+    value: Document | Motion,
+    dest: str | os.PathLike | BinaryIO,
+    *,
+    format: str | None = None,
+    force: bool = False,
+    unit_scale: float | None = None,
+    keys: str | None = None,
 ) -> None:
-    """Write a document (NPZ or JSON), a BVH motion or a C3D motion.
+    """Write a document (NPZ or JSON), a BVH motion or a C3D motion, or a
+    motion as glTF 2.0.
 
     Parameters
     ----------
@@ -148,17 +155,33 @@ def write(
     dest : str, path-like or binary file object
         A path (``"-"`` is standard output) or a file opened for binary
         writing.  A path is written atomically: complete, or not there.
-    format : {"npz", "json"}, optional
+    format : {"npz", "json", "glb", "gltf"}, optional
         For a document: the default is JSON when ``dest`` ends in ``.json``,
-        else NPZ.
+        else NPZ.  For a motion: ``"glb"`` (binary glTF) or ``"gltf"`` (JSON
+        glTF, the buffer in it as base64); the default is glTF when ``dest``
+        ends in ``.glb`` or ``.gltf``, else the motion's own format.
     force : bool
         Replace an existing file (refused otherwise).
+    unit_scale : float, optional
+        glTF only: metres per file unit (glTF is in metres).  The default is
+        the C3D's POINT:UNITS, else the unit (m, cm, mm, CMU's 1/0.45 inch,
+        inch, dm) that makes the figure 1.0 to 2.2 m tall.
+    keys : {"dense", "poses"}, optional
+        glTF only: ``"dense"`` (the default, for a motion) keys every frame,
+        LINEAR.  ``"poses"`` (for a BVH document of one layer) keys each
+        joint at its own knots of the staggered poses, CUBICSPLINE, fitted
+        to follow the splines (displacement maps and contacts are not in
+        these keys).
 
     Raises
     ------
     UsageError
         ``dest`` exists without ``force``; its name says another kind (a
-        document named ``.bvh``, a BVH named ``.c3d``).
+        document named ``.bvh``, a BVH named ``.c3d``); a ``unit_scale``
+        that is not positive or makes the figure shorter than 1 cm or
+        taller than 1 km.
+    DataError
+        A motion with values glTF's 32-bit floats cannot hold.
 
     Examples
     --------
@@ -169,10 +192,21 @@ def write(
     >>> from pathlib import Path
     >>> buffer.getvalue() == Path("data/samples/march.bvh").read_bytes()
     True
+
+    The same motion as binary glTF, a skinned skeleton in metres:
+
+    >>> st.write(st.read("data/samples/march.bvh"), "out/doctest/march.glb", force=True)
+    >>> Path("out/doctest/march.glb").read_bytes()[:4]
+    b'glTF'
+
+    Or the staggered poses of a document as keys (each joint at its own times):
+
+    >>> st.write(st.extract(st.read("data/samples/march.bvh")), "out/doctest/march_poses.glb",
+    ...          keys="poses", force=True)
     """
     from .io.formats import write as io_write
 
-    io_write(value, dest, format=format, force=force)
+    io_write(value, dest, format=format, force=force, unit_scale=unit_scale, keys=keys)
 
 
 # --------------------------------------------------------------------------- extract

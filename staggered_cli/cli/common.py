@@ -38,11 +38,12 @@ def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
     emit(output, pieces(doc, document_format(fmt, output), output), force)
 
 
-def write_motion(motion, output: str, force: bool) -> None:
-    """Write a BvhMotion as BVH or a MarkerMotion as C3D."""
+def write_motion(motion, output: str, force: bool, **gltf) -> None:
+    """Write a BvhMotion as BVH or a MarkerMotion as C3D, or either as glTF
+    when ``output`` ends in .glb or .gltf (``gltf``: its keywords)."""
     from ..io.formats import pieces
 
-    emit(output, pieces(motion), force)
+    emit(output, pieces(motion, name=output, **gltf), force)
 
 
 def check_motion_output(kind: str, output: str, writer: str | None = None) -> None:

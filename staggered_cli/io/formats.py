@@ -23,7 +23,17 @@ STDIO = files.STDIO
 _BOM = b"\xef\xbb\xbf"
 
 #: Output name endings that say what a file holds (compared without case).
-KIND_OF_EXTENSION = {".bvh": "bvh", ".c3d": "c3d", ".stag": "document", ".npz": "document", ".json": "document"}
+KIND_OF_EXTENSION = {
+    ".bvh": "bvh",
+    ".c3d": "c3d",
+    ".stag": "document",
+    ".npz": "document",
+    ".json": "document",
+    ".glb": "gltf",
+    ".gltf": "gltf",
+}
+#: Formats a motion may be written in besides its own: glTF, binary or JSON.
+GLTF_FORMATS = ("glb", "gltf")
 
 
 def detect_kind(data: bytes) -> str:
@@ -155,7 +165,7 @@ def check_motion_name(kind: str, output: str, writer: str | None = None) -> None
     bake of a document of that kind).  Names without a known extension
     (``-``, ``/dev/null``, ``out.txt``) are taken as they are."""
     said = kind_in_name(output)
-    if said is not None and said != kind:
+    if said is not None and said != kind and said != "gltf":  # any motion may be written as glTF
         what = "a document" if said == "document" else said.upper()
         does = f"{writer} writes" if writer else f"a {kind.upper()} document bakes to"
         raise UsageError(f"{does} {kind.upper()}, but the name says {what}", source=output)
@@ -165,9 +175,9 @@ def check_document_name(output: str) -> None:
     """Refuse a document output name that says BVH or C3D: a zip would
     otherwise land under a motion file's name."""
     said = kind_in_name(output)
-    if said in ("bvh", "c3d"):
+    if said in ("bvh", "c3d", "gltf"):
         raise UsageError(
-            f"this writes a staggered-pose document, but the name says {said.upper()} "
+            f"this writes a staggered-pose document, but the name says {'glTF' if said == 'gltf' else said.upper()} "
             "(`bake` writes the motion; name the document .stag)",
             source=output,
         )
@@ -179,7 +189,7 @@ def check_picture_name(output: str, what: str) -> None:
     land under a motion file's name."""
     said = kind_in_name(output)
     if said is not None:
-        kind = "a document" if said == "document" else said.upper()
+        kind = "a document" if said == "document" else "glTF" if said == "gltf" else said.upper()
         raise UsageError(f"this writes {what}, but the name says {kind}", source=output)
 
 
@@ -193,20 +203,52 @@ def document_format(fmt: str | None, output: str) -> str:
     return "json" if output != STDIO and output.lower().endswith(".json") else "npz"
 
 
-def pieces(value, fmt: str | None = None, name: str = STDIO) -> list | bytes:
+def gltf_format(fmt: str | None, name: str) -> str | None:
+    """``'glb'`` or ``'gltf'`` when a motion is to be written as glTF: ``fmt``
+    if given, else the name's extension (``.glb``, ``.gltf``); None: the
+    motion's own format."""
+    if fmt is not None:
+        if fmt not in GLTF_FORMATS:
+            raise UsageError(
+                f"{arg('format')} of a motion must be 'glb' or 'gltf' (default: its own, BVH or C3D), got {fmt!r}"
+            )
+        return fmt
+    if kind_in_name(name) == "gltf":
+        return os.path.splitext(name)[1].lower()[1:]
+    return None
+
+
+def pieces(value, fmt: str | None = None, name: str = STDIO, **gltf) -> list | bytes:
     """The bytes of ``value`` as written: a Document (NPZ or JSON by ``fmt``
-    or the name), a BvhMotion as BVH text, a MarkerMotion as C3D."""
+    or the name), a BvhMotion as BVH text, a MarkerMotion as C3D, a motion
+    as glTF (``fmt`` ``'glb'`` or ``'gltf'``, or a name ending so; ``gltf``:
+    the keywords of :func:`staggered_cli.io.gltf.gltf_pieces`)."""
     from ..model.document import Document
     from ..motion import BvhMotion, MarkerMotion
 
+    gltf = {k: v for k, v in gltf.items() if v is not None}  # None: the default
     if isinstance(value, Document):
         from .container import document_pieces
         from .schema import to_parts
 
+        if gltf_format(fmt if fmt in GLTF_FORMATS else None, name) is not None:
+            if gltf.get("keys") != "poses":
+                raise UsageError(f"a document is written as glTF with {arg('keys')} 'poses' (bake it for its motion)")
+            from .gltf import gltf_pieces
+
+            binary = gltf_format(fmt if fmt in GLTF_FORMATS else None, name) == "glb"
+            return gltf_pieces(value.source, binary=binary, document=value, **gltf)
+        if gltf:
+            raise UsageError(f"{arg(next(iter(gltf)))} applies to glTF output (a motion written as .glb or .gltf)")
         manifest, arrays = to_parts(value)
         return document_pieces(manifest, arrays, document_format(fmt, name))
-    if fmt is not None:
-        raise UsageError(f"{arg('format')} applies to documents; a motion is written as BVH or C3D")
+    as_gltf = gltf_format(fmt, name) if isinstance(value, BvhMotion | MarkerMotion) else None
+    if as_gltf is not None:
+        from .gltf import gltf_pieces
+
+        return gltf_pieces(value, binary=as_gltf == "glb", **gltf)
+    if gltf:
+        raise UsageError(f"{arg(next(iter(gltf)))} applies to glTF output (a name ending in .glb or .gltf)")
     if isinstance(value, BvhMotion):
         from .bvh import bvh_pieces
 
@@ -223,7 +265,8 @@ def check_name_for(value, output: str) -> None:
     from ..model.document import Document
 
     if isinstance(value, Document):
-        check_document_name(output)
+        if kind_in_name(output) != "gltf":  # a document's pose keys may be written as glTF
+            check_document_name(output)
     else:
         from ..motion import BvhMotion
 
@@ -236,13 +279,16 @@ def write(
     *,
     format: str | None = None,
     force: bool = False,
+    **gltf,
 ) -> None:
     """Write a document, a BVH motion or a C3D motion to ``dest`` (a path,
     ``-`` for standard output, or a binary file object), atomically for a
     path: the file is complete or not there, and an existing one is refused
-    unless ``force``."""
+    unless ``force``.  A motion named ``.glb``/``.gltf`` (or with ``format``
+    ``'glb'``/``'gltf'``) is written as glTF, with the keywords ``gltf`` of
+    :func:`staggered_cli.io.gltf.gltf_pieces` (``unit_scale``, ``keys``)."""
     if hasattr(dest, "write"):
-        data = pieces(value, format, str(getattr(dest, "name", "") or STDIO))
+        data = pieces(value, format, str(getattr(dest, "name", "") or STDIO), **gltf)
         for piece in data if isinstance(data, list | tuple) else [data]:
             dest.write(piece)
         return
@@ -251,4 +297,4 @@ def write(
     path = os.fspath(dest)
     check_name_for(value, path)
     files.check_output(path, force)
-    files.write_atomic(path, pieces(value, format, path), force)
+    files.write_atomic(path, pieces(value, format, path, **gltf), force)
