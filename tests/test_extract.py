@@ -297,6 +297,19 @@ def test_refinement_frames_take_the_nearest_peak_closer_to_its_pose():
     np.testing.assert_array_equal(r, [[0, 0], [-2, 0], [0, 10], [0, 0]])
 
 
+def test_laplacian_smoothing_does_not_depend_on_the_memory_layout():
+    """A column picked out of a (T, V, 3) array is not C-contiguous: the
+    smoothing once returned it unsmoothed (its in-place steps went to a copy)."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(60, 5, 3))
+    picked = x[:, [1, 3]]
+    assert not picked.flags["C_CONTIGUOUS"]
+    want = smoothing.laplacian_smooth(np.ascontiguousarray(picked), 0.025, 120.0)
+    got = smoothing.laplacian_smooth(picked, 0.025, 120.0)
+    assert np.abs(want - picked).max() > 0.1  # it smooths
+    np.testing.assert_array_equal(got, want)
+
+
 def test_coordinate_extremes_find_where_a_coordinate_turns_back_and_ignore_jitter():
     """A bob of 4 % of the figure height on a forward walk turns at its
     maxima and minima (within a frame), and the forward axis never does; a

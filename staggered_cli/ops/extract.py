@@ -406,10 +406,16 @@ def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing:
     clip, no translations)."""
     if not isinstance(motion, BvhMotion):
         return None
-    moved = [dense for kind, _, _, dense in variables if kind != ROTATION]
-    if not moved:
+    groups = [dense for kind, _, _, dense in variables if kind != ROTATION]
+    if not groups:
         return None
-    return trails.coordinate_extremes(np.concatenate(moved, axis=1), ev.figure_height, ev.rate, ev.breaks, smoothing)
+    dense = np.concatenate(groups, axis=1) if len(groups) > 1 else groups[0]
+    out = np.zeros(dense.shape[:2])
+    # only the translations that move (a Bandai skeleton's joints carry constant ones)
+    moving = np.flatnonzero(np.any(dense != dense[:1], axis=(0, 2)))
+    if len(moving):
+        out[:, moving] = trails.coordinate_extremes(dense[:, moving], ev.figure_height, ev.rate, ev.breaks, smoothing)
+    return out
 
 
 def prune_refinements(
