@@ -12,7 +12,8 @@ along the heading, flight phases) are set against the extracted document
 * ``pose near``: share of each kind of event with a pose within 0.1 s
   (root extremes, swing extremes, take-offs and landings of flight phases);
 * ``offset``: mean signed offset, nearest pose time minus event time, per
-  kind (negative: the pose comes early), per file and pooled over files;
+  kind (negative: the pose comes early; an event midway between two poses
+  counts as 0), per file and pooled over files;
 * ``flight``: share of flight phases (both feet off the ground >= 0.1 s)
   with a pose inside (first to last airborne frame);
 * ``sparse``: the spline layer alone (``bake --layers splines``, no IK),
@@ -77,15 +78,27 @@ def extreme_times(doc, cols: list[int]) -> np.ndarray:
     return np.sort(t[np.isfinite(t)])
 
 
-def nearest_offset(times: np.ndarray, events: np.ndarray) -> np.ndarray:
-    """(N,) nearest ``times`` minus each event time (NaN when there are no times)."""
+def nearest_offset(times: np.ndarray, events: np.ndarray, signed: bool = False) -> np.ndarray:
+    """(N,) nearest ``times`` minus each event time (NaN when there are no times).
+
+    An event midway between two times (on a regular grid of poses, a few
+    percent of them) is as far from both: its distance is the same either
+    way, but taking the earlier one (``argmin``'s first) would count every
+    tie as early.  With ``signed``, a tie counts as the mean of its two
+    offsets (zero), so that the mean signed offset measures a bias, not the
+    tie rule (issue 34: on the dev files the tie rule alone made the swings
+    4 ms and the take-offs 6 ms early)."""
     if len(events) == 0:
         return np.zeros(0)
     if len(times) == 0:
         return np.full(len(events), np.nan)
     i = np.clip(np.searchsorted(times, events), 1, len(times) - 1) if len(times) > 1 else np.zeros(len(events), int)
     cand = np.stack([times[np.maximum(i - 1, 0)], times[i]], axis=1) - events[:, None]
-    return cand[np.arange(len(events)), np.argmin(np.abs(cand), axis=1)]
+    out = cand[np.arange(len(events)), np.argmin(np.abs(cand), axis=1)]
+    if signed:
+        tie = np.abs(np.abs(cand[:, 0]) - np.abs(cand[:, 1])) <= 1e-9
+        out = np.where(tie, cand.mean(axis=1), out)
+    return out
 
 
 def share(mask) -> float | None:
@@ -114,12 +127,14 @@ def measure_doc(doc, ev, motion, sparse: bool) -> dict:
     cols = var_columns(doc)
     row: dict = {"poses": doc.n_poses, "density": doc.n_poses / doc.duration}
     root_col = cols.get(("translation", ev.place))
-    off = {
-        "root": nearest_offset(doc.pose_t, ev.root_extremes),
-        "swing": nearest_offset(doc.pose_t, np.sort(np.concatenate([*ev.swings.values(), np.zeros(0)]))),
-        "takeoff": nearest_offset(doc.pose_t, ev.flights[:, 0]),
-        "landing": nearest_offset(doc.pose_t, ev.flights[:, 1]),
+    at = {
+        "root": ev.root_extremes,
+        "swing": np.sort(np.concatenate([*ev.swings.values(), np.zeros(0)])),
+        "takeoff": ev.flights[:, 0],
+        "landing": ev.flights[:, 1],
     }
+    off = {k: nearest_offset(doc.pose_t, e) for k, e in at.items()}
+    signed = {k: nearest_offset(doc.pose_t, e, signed=True) for k, e in at.items()}
     knots = extreme_times(doc, [] if root_col is None else [root_col])
     refined = 0 if root_col is None else int(np.count_nonzero(doc.refinements()[:, root_col]))
     row["root_refined"] = [refined, doc.n_poses]
@@ -130,8 +145,8 @@ def measure_doc(doc, ev, motion, sparse: bool) -> dict:
         swing_hits.extend(np.abs(nearest_offset(extreme_times(doc, arm_cols), times)) <= KNOT_WINDOW + 1e-9)
     row["swing_knot"] = share(swing_hits)
     row["pose_near"] = {k: share(np.abs(v) <= POSE_WINDOW + 1e-9) for k, v in off.items()}
-    row["offset"] = {k: (float(np.mean(v)) if len(v) else None) for k, v in off.items()}
-    row["offsets"] = {k: [float(x) for x in v] for k, v in off.items()}
+    row["offset"] = {k: (float(np.mean(v)) if len(v) else None) for k, v in signed.items()}
+    row["offsets"] = {k: [float(x) for x in v] for k, v in signed.items()}
     inside = [np.any((doc.pose_t >= a - 1e-9) & (doc.pose_t <= b + 1e-9)) for a, b in ev.flights]
     row["flight"] = share(inside)
     changes = [t for c in doc.constraints for t in (c.start, c.end) if 0 < t < doc.duration - 1e-9]

@@ -23,7 +23,14 @@
    variables take the local maximum of ``p_i`` nearest ``t_k`` within
    ``refine_window`` seconds and strictly closer to ``t_k`` than to the
    neighbouring poses (:func:`refinement_frames`), kept only where they earn
-   their keep (:func:`prune_refinements`).  Refinements are whole frames;
+   their keep (:func:`prune_refinements`).  A BVH translation (the root's)
+   takes, by the same rule, its own nearest extreme instead: where one of
+   its coordinates turns back (:func:`trails.coordinate_extremes`: the
+   crouch, the apex, a walk's down and up), kept unless it makes the fit
+   worse (issue 34: the curvature of the root's 3-D path peaks where the
+   path bends, not where the height turns, and the misfit rule, which asks
+   a knot to cut the root's whole misfit to 40 %, kept 34 of 471; a vertical
+   extreme removes the vertical misfit only).  Refinements are whole frames;
    the "closer to its own pose" rule keeps every variable's knots in order.
    Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
    last pose) stays for ``cull --by paper``.
@@ -53,6 +60,7 @@ from ..contacts import detect as contact_detection
 from ..contacts import ik
 from ..errors import DataError, UsageError, arg
 from ..model.document import Document
+from ..model.kinds import ROTATION
 from ..model.variables import dense_variables, fits_by_column, from_motion
 from ..motion import BvhMotion, MarkerMotion, rate_problem
 from ..signals import placement, probability, trails
@@ -70,6 +78,9 @@ SEGMENT_REACH = 3.0
 CONTACT_REWARD = 0.15
 #: A refinement stays only where it cuts the misfit around its pose to this share.
 REFINE_GAIN = 0.4
+#: A translation's refinement onto its own extreme stays unless it makes the
+#: misfit around its pose worse.
+EXTREME_GAIN = 1.0
 #: Default fewest seconds between two poses (issue 13), and the most allowed.
 DEFAULT_MIN_SPACING = 0.1
 MAX_MIN_SPACING = 10.0
@@ -389,15 +400,39 @@ def contact_refinements(
     return out, best < np.iinfo(int).max
 
 
+def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing: float) -> np.ndarray | None:
+    """(T, n) the extremes of a BVH clip's ``n`` translation variables (the
+    first ``n`` columns, :func:`trails.coordinate_extremes`), or None (a C3D
+    clip, no translations)."""
+    if not isinstance(motion, BvhMotion):
+        return None
+    groups = [dense for kind, _, _, dense in variables if kind != ROTATION]
+    if not groups:
+        return None
+    dense = np.concatenate(groups, axis=1) if len(groups) > 1 else groups[0]
+    out = np.zeros(dense.shape[:2])
+    # only the translations that move (a Bandai skeleton's joints carry constant ones)
+    moving = np.flatnonzero(np.any(dense != dense[:1], axis=(0, 2)))
+    if len(moving):
+        out[:, moving] = trails.coordinate_extremes(dense[:, moving], ev.figure_height, ev.rate, ev.breaks, smoothing)
+    return out
+
+
 def prune_refinements(
-    proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray, fixed: np.ndarray
+    proxy: placement.Proxy,
+    pose_f: np.ndarray,
+    refine_f: np.ndarray,
+    fixed: np.ndarray,
+    gain: np.ndarray | float = REFINE_GAIN,
 ) -> np.ndarray:
     """Refinements (K, V) that earn their keep.
 
     A refinement stays where its extreme knot makes the spline layer fit the
     segments around the pose at most :data:`REFINE_GAIN` times as badly as
     the pose time alone does: a knot that only shifts the misfit around
-    makes the body's parts miss together, not better.  Variables too small
+    makes the body's parts miss together, not better.  ``gain`` (a number,
+    or one per variable) replaces that share: :data:`EXTREME_GAIN` for a
+    knot on the variable's own extreme.  Variables too small
     to be in the proxy lose theirs; ``fixed`` (K, V) ones stay anyway.  Poses
     of one parity are decided together, then the other.
     """
@@ -408,6 +443,7 @@ def prune_refinements(
         return r
     rc = np.array(refine_f, dtype=int)[:, cols]
     fx = fixed[:, cols]
+    gains = np.broadcast_to(np.asarray(gain, dtype=float), (r.shape[1],))[cols]
     f = pose_f.astype(float)
     for parity in (1, 0):
         ks = np.arange(1, K - 1)
@@ -421,7 +457,7 @@ def prune_refinements(
         lo, hi = np.minimum(here, ext), np.maximum(here, ext)
         with_r = placement.span_costs(proxy, np.stack([left, lo, hi, right], axis=-1))
         without = placement.span_costs(proxy, np.stack([left, here, here, right], axis=-1))
-        drop = (with_r > REFINE_GAIN * without) & ~fx[ks]
+        drop = (with_r > gains * without) & ~fx[ks]
         rc[ks] = np.where(drop, 0, rc[ks])
     r[:, cols] = rc
     return r
@@ -542,6 +578,7 @@ def extract(
     if significance > 0:
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
+    own = translation_extremes(motion, variables, ev, smoothing)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
@@ -560,8 +597,13 @@ def extract(
     priority = probability.pose_priority(P, pose_f, pose_t)
 
     peaks = refinement_frames(ev.p, pose_f, window)
+    gain = np.full(len(ev.names), REFINE_GAIN)
+    if own is not None:  # translations: their own extremes, kept unless they make the fit worse
+        n = own.shape[1]
+        peaks[:, :n] = refinement_frames(own, pose_f, window)
+        gain[:n] = EXTREME_GAIN
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
-    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed)
+    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain)
     refine = refine_f * float(motion.frame_time)
     del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 

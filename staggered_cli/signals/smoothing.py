@@ -63,7 +63,9 @@ def laplacian_smooth(x: np.ndarray, duration: float, rate: float, breaks: np.nda
     O(T log T).  Small counts run the iterations themselves (bit for bit the
     explicit scheme); both agree to about 1e-13.
     """
-    x = np.array(x, dtype=float, copy=True)
+    # C order: the iterations update ``x.reshape(T, -1)`` in place, which is
+    # a copy (and the result unsmoothed) for any other layout
+    x = np.array(x, dtype=float, copy=True, order="C")
     T = x.shape[0]
     if T < 2:
         return x
