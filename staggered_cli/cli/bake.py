@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from ..errors import cli_text
 from .common import check_motion_output, check_output, finite, note, read_document, write_motion
 from .options import force_option, input_argument, output_option
 
@@ -101,7 +102,7 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, move_plants, unit_sca
 
         if scale is None and doc.kind == "bvh":
             scale, why = unit_scale_for(doc.source)
-            note(why)
+            note(cli_text(why))
         emit(output, pieces(doc, name=output, keys="poses", unit_scale=scale), force)
         return
     motion = op(doc, fps=rate, layers=layers, ik=not no_ik, ik_blend=blend, move_plants=move_plants)
@@ -112,5 +113,5 @@ def bake(input_path, output, fps, layers, no_ik, ik_blend, move_plants, unit_sca
         from ..io.gltf import unit_scale_for
 
         scale, why = unit_scale_for(motion)
-        note(why)
+        note(cli_text(why))
     write_motion(motion, output, force, unit_scale=scale, keys=keys)

@@ -12,7 +12,7 @@ import os
 import stat
 import sys
 
-from ..errors import DataError, StaggeredError, UsageError
+from ..errors import DataError, StaggeredError, UsageError, arg
 
 STDIO = "-"
 STDIN_NAME = "<stdin>"
@@ -177,7 +177,7 @@ def check_output(path: str, force: bool) -> None:
     if os.path.isdir(path):
         raise UsageError("output is a directory", source=path)
     if os.path.lexists(path) and not force:
-        raise UsageError("output exists (use --force to overwrite it)", source=path)
+        raise UsageError(f"output exists (use {arg('force')} to overwrite it)", source=path)
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         above = parent  # the nearest existing folder above, or the file in the way
@@ -272,10 +272,10 @@ def write_atomic(path: str, data, force: bool) -> None:
             try:
                 os.link(tmp, path)
             except FileExistsError:
-                raise UsageError("output exists (use --force to overwrite it)", source=path) from None
+                raise UsageError(f"output exists (use {arg('force')} to overwrite it)", source=path) from None
             except OSError:  # a filesystem without hard links
                 if os.path.lexists(path):
-                    raise UsageError("output exists (use --force to overwrite it)", source=path) from None
+                    raise UsageError(f"output exists (use {arg('force')} to overwrite it)", source=path) from None
                 os.replace(tmp, path)
         _fsync_directory(directory)
     except OSError as err:

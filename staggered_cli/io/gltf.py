@@ -70,12 +70,12 @@ def unit_scale_for(motion: BvhMotion | MarkerMotion) -> tuple[float, str]:
         if HUMAN_HEIGHT[0] <= height * scale <= HUMAN_HEIGHT[1]:
             return scale, (
                 f"glTF in metres: assumed the file is in {name} (figure {height * scale:.2f} m tall); "
-                "--unit-scale S sets metres per unit"
+                f"{arg('unit_scale')} S sets metres per unit"
             )
     name, scale = min(UNITS, key=lambda u: abs(math.log(max(height * u[1], 1e-300) / 1.7)))
     return scale, (
         f"glTF in metres: no unit makes the figure 1.0-2.2 m tall; assumed {name} "
-        f"({height * scale:.3g} m); --unit-scale S sets metres per unit"
+        f"({height * scale:.3g} m); {arg('unit_scale')} S sets metres per unit"
     )
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..contacts.constraint import Constraint
-from ..errors import DataError, UsageError
+from ..errors import DataError, UsageError, arg
 from ..motion import (
     BvhMotion,
     MarkerMotion,
@@ -89,7 +89,7 @@ class Document:
         """The pose times of ``layer`` (0: the base layer's ``pose_t``)."""
         if not 0 <= layer < self.n_layers:
             raise UsageError(
-                f"--layer must be from 0 to {self.n_layers - 1} (the document has {self.n_layers}), got {layer}"
+                f"{arg('layer')} must be from 0 to {self.n_layers - 1} (the document has {self.n_layers}), got {layer}"
             )
         return self.pose_t if layer == 0 else self.layer_pose_t[layer - 1]
 
@@ -168,9 +168,9 @@ def check_time_range(doc: Document, time_range: tuple[float, float]) -> tuple[fl
     """``--time A:B`` checked against the clip: A <= B, and overlapping it."""
     a, b = time_range
     if np.isnan(a) or np.isnan(b) or a > b:
-        raise UsageError(f"--time must be A:B with A <= B, got {a}:{b}")
+        raise UsageError(f"{arg('time')} must be A:B with A <= B, got {a}:{b}")
     if b < 0 or a > doc.duration + 1e-9:
-        raise UsageError(f"--time {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
+        raise UsageError(f"{arg('time')} {a:g}:{b:g} lies outside the clip (0 to {doc.seconds(doc.duration)})")
     return float(a), float(b)
 
 
