@@ -16,7 +16,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, BinaryIO
 
-from .errors import UsageError, arg
+from .errors import StaggeredError, UsageError, arg
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -274,8 +274,7 @@ def extract(
         what = type(motion).__name__
         hint = ": it is already a document" if what == "Document" else ""
         raise UsageError(f"{arg('motion')} must be a BVH or C3D clip (st.read), got {what}{hint}")
-    # the options before the clip (a batch checks them so, on no clip)
-    check_options(
+    options = dict(
         smoothing=smoothing,
         filter_width=filter_width,
         refine_window=refine_window,
@@ -284,6 +283,7 @@ def extract(
         significance=significance,
         min_spacing=min_spacing,
     )
+    check_options(**options)  # the options before the clip (a batch checks them so, on no clip)
     if isinstance(motion, BvhMotion) and motion.channels.size > MAX_EXTRACT_VALUES:
         raise UsageError(
             f"{arg('motion')} has {motion.channels.size:,} channel values, more than extract's "
@@ -294,13 +294,7 @@ def extract(
         source_name=motion.name,
         source_bytes=motion.source or None,
         contact_joints=_names(contact_joints, "contact_joints"),
-        smoothing=smoothing,
-        filter_width=filter_width,
-        refine_window=refine_window,
-        min_contact=min_contact,
-        contact_tolerance=contact_tolerance,
-        significance=significance,
-        min_spacing=min_spacing,
+        **options,
     )
 
 
@@ -501,10 +495,8 @@ def edit_pose(
         other, source = _pose_file(from_bvh)
         try:
             values = ops.values_from_motion(doc, other, int(frame), names, subtree)
-        except Exception as err:  # about the pose file, not the document
-            from .errors import StaggeredError
-
-            if isinstance(err, StaggeredError) and source:
+        except StaggeredError as err:  # about the pose file, not the document
+            if source:
                 raise err.with_source(source) from None
             raise
     doc = ops.edit_pose(

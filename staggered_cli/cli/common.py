@@ -4,7 +4,6 @@ and parsers for the small option languages (``A:B`` ranges, ``J=x,y,z``)."""
 from __future__ import annotations
 
 import math
-import sys
 
 import click
 
@@ -13,28 +12,15 @@ from .options import check_output, document_format, emit, load_document
 
 
 def read_document(path: str):
-    """The :class:`~staggered_cli.model.document.Document` in ``path`` (``-``: stdin,
-    where a batch's previous step may have handed over the Document itself)."""
-    from ..io.files import STDIO
-
-    if path == STDIO:
-        handed = getattr(getattr(sys.stdin, "buffer", None), "document", None)
-        if handed is not None:
-            return handed
+    """The :class:`~staggered_cli.model.document.Document` in ``path`` (``-``: stdin)."""
     return load_document(path)
 
 
 def write_document(doc, output: str, fmt: str | None, force: bool) -> None:
-    """Serialize ``doc`` and write it atomically (or to stdout; to a batch's
-    pipe between two steps, the Document itself is handed over)."""
-    from ..io.files import STDIO
+    """Serialize ``doc`` and write it atomically (or to stdout)."""
     from ..io.formats import pieces
 
     check_document_output(output)
-    pipe = getattr(sys.stdout, "buffer", None) if output == STDIO else None
-    if hasattr(pipe, "document"):
-        pipe.document = doc
-        return
     emit(output, pieces(doc, document_format(fmt, output), output), force)
 
 

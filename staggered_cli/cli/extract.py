@@ -21,22 +21,15 @@ def _read_motion(path: str):
     """The clip in ``path``; a document is refused."""
     from ..errors import UsageError
     from ..io.files import display_name
+    from ..io.formats import read
     from ..model.document import Document
     from ..ops.extract import MAX_EXTRACT_VALUES
 
     # a BVH too large to extract is refused from its header, before its values are parsed
-    motion = read_motion(path, MAX_EXTRACT_VALUES)
+    motion = read(path, max_bvh_values=MAX_EXTRACT_VALUES)
     if isinstance(motion, Document):
         raise UsageError("is already a staggered-poses document: extract reads BVH or C3D", source=display_name(path))
     return motion
-
-
-def read_motion(path: str, max_bvh_values: int | None = None):
-    """What ``path`` holds, with a BVH refused beyond ``max_bvh_values``."""
-    from ..io.formats import parse, read_input
-
-    data, name = read_input(path)
-    return parse(data, name, max_bvh_values=max_bvh_values, path=path)
 
 
 @click.command("extract")

@@ -39,11 +39,11 @@ def new(input_path, times, output, force, fmt):
     from ..errors import UsageError
     from ..model.document import Document
     from ..motion import BvhMotion
-    from .extract import read_motion
+    from .options import load_input
 
     check_output(output, force)
     t = _times(times)
-    motion = read_motion(input_path)
+    motion = load_input(input_path)
     name = "<stdin>" if input_path == "-" else os.path.basename(input_path)
     if isinstance(motion, Document):
         raise UsageError("is already a staggered-poses document: new reads key poses from a BVH", source=name)
