@@ -150,7 +150,9 @@ def document_proxy(doc: Document, motion: tuple[np.ndarray, ...] | None = None) 
         if tr.kind == ROTATION:
             dense = quat.unroll(dense, axis=0)
         variables.append((tr.kind, tr.names, tr.targets, dense))
-        ext.append(pose_arrays(tr, doc.n_poses)[0])
+        ext_t = pose_arrays(tr, doc.n_poses)[0]
+        # a partial pose has no knot outside its part: there it spans nothing
+        ext.append(np.where(np.isnan(ext_t), doc.pose_t[:, None], ext_t))
     proxy = placement.proxy_from_dense(variables, placement.variable_weights(doc.source, variables))
     ext_f = (np.concatenate(ext, axis=1) if ext else np.zeros((doc.n_poses, 0))) / doc.frame_time
     return proxy, ext_f[:, proxy.cols]
