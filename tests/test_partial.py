@@ -428,3 +428,39 @@ def test_from_motion_builds_partial_poses_as_add_poses_does(walk, arm_walk):
     np.testing.assert_allclose(bake(built, ik=False).channels, motion.channels, atol=1e-6)
     with pytest.raises(UsageError, match="first and last pose"):
         from_motion(motion, t, refine, pose_part=["@left-arm"] + [None] * (len(t) - 1))
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh", "games105_idle.bvh"],
+)
+def test_partial_poses_of_every_part_on_real_skeletons(name):
+    """On skeletons of four naming schemes: a partial pose of each part the
+    skeleton has, lossless, bit-identical outside the part, through a file
+    and a cull --keep."""
+    from staggered_cli.names import PARTS
+
+    doc = dev_document(name)
+    t = doc.pose_t
+    spare = [x for x in np.linspace(0.05, 0.95, 40) * doc.duration if np.min(np.abs(t - x)) > 2 * doc.frame_time]
+    parts, times = [], []
+    for p, x in zip(PARTS, spare[:: max(1, len(spare) // 6)], strict=False):
+        try:
+            doc.part_mask("@" + p)
+        except UsageError:
+            continue
+        parts.append("@" + p)
+        times.append(float(x))
+    assert len(parts) >= 4, parts
+    with staggered_warnings():  # a time inside another pose's staggered span collapses it
+        out = cull.add_poses(doc, times, parts)
+    assert sorted(p for p in out.pose_part if p) == sorted(parts)
+    owned = np.zeros(len(doc.variable_names), dtype=bool)
+    for p in parts:
+        owned |= doc.part_mask(p)
+    assert same_variables(doc, out, ~owned)
+    np.testing.assert_allclose(bake(out, ik=False).channels, bake(doc, ik=False).channels, atol=1e-9)
+    back = from_parts(*to_parts(out))
+    assert back.pose_part == out.pose_part
+    n = (out.n_poses + 2) // 2
+    assert cull.choose(out, keep=str(n), ignore_contacts=True).sum() == n

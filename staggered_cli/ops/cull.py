@@ -323,15 +323,16 @@ def add_poses(
         hi = np.maximum(doc.pose_t[:, None], ext)
         conflict = np.zeros(refine.shape, dtype=bool)
         for time, m in zip(new_t, mine, strict=True):
-            conflict |= owns & (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi) & m[None, :]
-        for k in np.flatnonzero(conflict.any(axis=1)):
-            names = ", ".join(tr.names[i] for i in np.flatnonzero(conflict[k]))
-            warn(
-                f"{arg('add_time')} %s: pose %d's refinements of %s collapse to 0 to make room",
-                ", ".join(doc.seconds(t) for t in new_t),
-                k,
-                names,
-            )
+            here = owns & (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi) & m[None, :] & ~conflict
+            for k in np.flatnonzero(here.any(axis=1)):
+                names = ", ".join(tr.names[i] for i in np.flatnonzero(here[k]))
+                warn(
+                    f"{arg('add_time')} %s: pose %d's refinements of %s collapse to 0 to make room",
+                    doc.seconds(time),
+                    k,
+                    names,
+                )
+            conflict |= here
         refine = np.where(conflict, 0.0, refine)
         value = np.where(conflict[..., None], edit, value)
         V = tr.n_vars
