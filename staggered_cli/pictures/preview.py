@@ -247,12 +247,19 @@ def preview_figure(
     (of ``subject`` or, if it is a clip, of ``compare``; at most
     :data:`MAX_PANELS`, evenly chosen); a clip without poses, or
     ``at='frames'``, shows ``count`` (default
-    :data:`DEFAULT_PREVIEW_FRAMES`) evenly spaced frames.  With ``compare``
+    :data:`DEFAULT_PREVIEW_FRAMES`) evenly spaced frames (of a marker set,
+    among the frames where at least half as many markers are seen as at
+    best: not in a capture's empty lead-in).  With ``compare``
     both are drawn at the same times, ``subject`` thin in blue (bones on the
     figure's left lighter) over ``compare`` wide in orange: where they agree
-    the blue figure has an orange halo.  C3D markers are points.
-    Each panel follows the figure: the horizontal axis is in file units
-    along the view, so travel shows in the tick labels.
+    the blue figure has an orange halo.  C3D markers are dots joined by
+    lines along the body (:func:`~staggered_cli.pictures.sticks.marker_bones`;
+    a document's own marker tree where it has one).
+    Each time is a column of a side panel over a front panel,
+    :data:`PANEL_HEIGHT` inches tall and :data:`PANEL_WIDTH` figure heights
+    wide, in rows at most :data:`MAX_WIDTH` inches wide (``fig.axes``: the
+    side panels, then the front panels, in time order).  Each panel follows
+    the figure and holds every point drawn in it.
     """
     from matplotlib.lines import Line2D
 
