@@ -75,9 +75,12 @@ def _times(
 def _seen_frames(points: np.ndarray) -> np.ndarray:
     """Frames (indices) where at least half as many points are seen as in
     the best-seen frame: every frame of a skeleton; a marker set's frames
-    without its long gaps (the BTS walk sees no marker in its first 239)."""
+    without its long gaps (the BTS walk sees no marker in its first 239);
+    every frame when no marker is ever seen (each panel says so)."""
     count = np.all(np.isfinite(points), axis=2).sum(axis=1)
-    return np.flatnonzero(count >= max(1, 0.5 * count.max()))
+    if not count.any():
+        return np.arange(len(points))
+    return np.flatnonzero(count >= 0.5 * count.max())
 
 
 def _segments(stick: _Stick, frame: int, x: np.ndarray, y: np.ndarray, size: float) -> np.ndarray:
