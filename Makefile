@@ -110,10 +110,10 @@ demo: $(STAMP)
 	$(S) extract data/samples/march.c3d -o - | $(S) bake - -o $(DEMO_OUT)/march.c3d --force
 	$(S) bake $(DEMO_OUT)/march.stag -o $(DEMO_OUT)/march_roundtrip.bvh --force
 	@cmp -s data/samples/march.bvh $(DEMO_OUT)/march_roundtrip.bvh && echo "round trip: $(DEMO_OUT)/march_roundtrip.bvh is byte-identical to the sample"
-	$(S) plot $(DEMO_OUT)/march_loose.stag --kind signals --dpi 72 -o $(DEMO_OUT)/signals.png --force
-	$(S) plot $(DEMO_OUT)/march_loose.stag --kind timing --dpi 72 -o $(DEMO_OUT)/timing.png --force
-	$(S) plot $(DEMO_OUT)/march_loose.stag --kind curves --joints RightArm,RightForeArm,RightHand --dpi 72 -o $(DEMO_OUT)/curves.png --force
-	$(S) preview $(DEMO_OUT)/march_loose.stag --compare data/samples/march.bvh --dpi 72 -o $(DEMO_OUT)/preview.png --force
+	$(S) plot $(DEMO_OUT)/march_loose.stag --kind signals -o $(DEMO_OUT)/signals.png --force
+	$(S) plot $(DEMO_OUT)/march_loose.stag --kind timing -o $(DEMO_OUT)/timing.png --force
+	$(S) plot $(DEMO_OUT)/march_loose.stag --kind curves --joints RightArm,RightForeArm,RightHand -o $(DEMO_OUT)/curves.png --force
+	$(S) preview $(DEMO_OUT)/march_loose.stag --compare data/samples/march.bvh -o $(DEMO_OUT)/preview.png --force
 	@echo "wrote $(DEMO_OUT)/: march.stag, march_loose.bvh, march_exaggerated.bvh, march_layered.bvh, march.c3d and signals, timing, curves, preview .png"
 
 # The README's pictures, regenerated on purpose (review them before committing).

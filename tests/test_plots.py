@@ -290,7 +290,10 @@ def test_demo_pictures_are_small(tmp_path):
     assert [p.name for p in paths] == ["signals.png", "timing.png", "curves.png", "preview.png"]
     for p in paths:
         check_png(p.read_bytes(), 10_000)
-        assert p.stat().st_size < 150_000, (p.name, p.stat().st_size)
+        with Image.open(p) as im:  # the default 100 dpi (was 72): a plot is 1200 x 700
+            assert im.info["dpi"] == pytest.approx((100, 100), abs=0.01), p.name
+            assert im.size[1] >= 700, (p.name, im.size)
+        assert p.stat().st_size < 250_000, (p.name, p.stat().st_size)  # curves 183 kB, the others < 110 kB
 
 
 # ------------------------------------------------------------- the commands
@@ -510,3 +513,135 @@ def test_c3d_preview_joins_markers_and_keeps_them_in_their_panels():
         assert x.min() - lo >= 0.05 * size and hi - x.max() >= 0.05 * size, (x.min() - lo, hi - x.max())
         cut_before += np.max(np.abs(x - np.median(x))) > 0.6 * size
     assert cut_before >= 1  # the flips this checks are there
+
+
+def _drawn_panels(fig, labels):
+    """What each panel of a drawn preview shows, read back from its artists:
+    the dots (x, y), the limits, and the lines as pairs of dot indices with
+    their lengths (a line's ends are dots' coordinates, exactly)."""
+    from matplotlib.collections import LineCollection
+
+    fig.canvas.draw()  # the limits and the layout as written
+    out = []
+    for ax in fig.axes:
+        dots = [ln for ln in ax.lines if ln.get_marker() == "o"]
+        assert len(dots) == 1
+        x, y = (np.asarray(v, dtype=float) for v in dots[0].get_data())
+        at = {(a, b): i for i, (a, b) in enumerate(zip(x.tolist(), y.tolist(), strict=True)) if np.isfinite(a + b)}
+        pairs, lengths = [], []
+        for coll in ax.collections:
+            if isinstance(coll, LineCollection):
+                for seg in coll.get_segments():
+                    seg = np.asarray(seg, dtype=float)
+                    if len(seg) == 2 and np.isfinite(seg).all():
+                        pairs.append((at[tuple(seg[0])], at[tuple(seg[1])]))
+                        lengths.append(float(np.linalg.norm(seg[1] - seg[0])))
+        out.append({"x": x, "y": y, "xlim": ax.get_xlim(), "ylim": ax.get_ylim(), "pairs": pairs, "lengths": lengths})
+    return out
+
+
+def _pieces(n: int, seen: np.ndarray, pairs) -> int:
+    """Separate parts of a panel's drawing: its seen dots joined by its lines."""
+    group = list(range(n))
+
+    def root(i):
+        while group[i] != i:
+            i = group[i]
+        return i
+
+    for a, b in pairs:
+        group[root(a)] = root(b)
+    return len({root(i) for i in np.flatnonzero(seen)})
+
+
+@pytest.mark.parametrize("what", ["clip", "document"])
+@pytest.mark.parametrize("name", C3D_FILES)
+def test_c3d_preview_draws_one_figure_inside_each_panel(documents, name, what):
+    """On every dev C3D, a clip at 12 frames and its document at its poses:
+    every marker drawn lies inside its panel's limits (flips, the BTS walk's
+    gaps); each panel is one figure, its markers joined by lines (at most 2
+    parts where a gap cuts a limb off); no line is longer than 0.6 figure
+    heights or joins a marker on the left to one on the right other than a
+    mirrored pair (hips, shoulders); a clip shows no empty panel.
+    Before (the rigid tree, its long lines dropped, frames over the whole
+    clip): the c3d.org walk 2.4 parts a panel (up to 5), the BTS walk 4.5
+    (up to 10) and 8 of 24 panels empty, the breakdance 72 lines across the
+    body; now at most 1.2, 1.0 and 0."""
+    clip = load_input(str(mocap(name)))
+    subject = documents(name) if what == "document" else clip
+    at = {} if what == "document" else {"at": "frames", "count": 12}
+    fig = pictures.preview_figure(subject, **at)
+    size = clip.figure_height()
+    sides = sticks._sides(clip.labels)
+    mirrored = {frozenset(p) for p in sticks.side_pairs(clip.labels)}
+    panels = _drawn_panels(fig, clip.labels)
+    parts, lines, empty = [], 0, 0
+    for p in panels:
+        (x0, x1), (y0, y1) = p["xlim"], p["ylim"]
+        assert np.isfinite([x0, x1, y0, y1]).all() and x1 > x0 and y1 > y0
+        seen = np.isfinite(p["x"]) & np.isfinite(p["y"])
+        x, y = p["x"][seen], p["y"][seen]
+        assert np.all((x >= x0) & (x <= x1)), (name, x.min() - x0, x1 - x.max())
+        assert np.all((y >= y0) & (y <= y1)), (name, y.min() - y0, y1 - y.max())
+        if not seen.any():
+            empty += 1
+            continue
+        lines += len(p["pairs"])
+        assert max(p["lengths"], default=0.0) <= 0.6 * size, (name, max(p["lengths"]) / size)
+        across = [
+            (clip.labels[a], clip.labels[b])
+            for a, b in p["pairs"]
+            if {sides[a], sides[b]} == {"left", "right"} and frozenset((a, b)) not in mirrored
+        ]
+        assert not across, (name, across)
+        parts.append(_pieces(len(p["x"]), seen, p["pairs"]))
+    assert lines > 0
+    assert max(parts) <= 2 and np.mean(parts) <= 1.3, (name, parts)
+    if what == "clip":
+        assert empty == 0, name
+
+
+def test_c3d_document_preview_draws_its_marker_tree(documents):
+    """A document's marker tree (from ``succession --chain`` or randomize,
+    :func:`~staggered_cli.ops.marker_chain.document_tree`) is what its
+    preview joins: the chain shoulder, elbow, forearm, wrist, finger, whose
+    forearm-to-wrist-A link the rigid tree of the clip does not have."""
+    from dataclasses import replace
+
+    name = "cmu_85_12_breakdance_long.c3d"
+    doc = documents(name)
+    chain = ["Male:RSHO", "Male:RUPA", "Male:RELB", "Male:RFRM", "Male:RWRA", "Male:RFIN"]
+    tree = {b: a for a, b in zip(chain[:-1], chain[1:], strict=True)}
+    labels = list(doc.target_names)
+    link = frozenset((labels.index("Male:RFRM"), labels.index("Male:RWRA")))
+    plain = sticks._stick(doc, "doc")
+    assert link not in {frozenset(map(int, b)) for b in plain.bones}
+    chained = replace(doc, parameters={**doc.parameters, "marker_tree": tree})
+    edited = sticks._stick(chained, "doc")
+    bones = {frozenset(map(int, b)) for b in edited.bones}
+    assert {frozenset((labels.index(a), labels.index(b))) for b, a in tree.items()} <= bones
+    assert len(edited.bones) == len(labels) - 1  # the rest joined as before: one figure
+    panels = _drawn_panels(pictures.preview_figure(chained), labels)
+    a, b = sorted(link)
+    assert all((a, b) in p["pairs"] or (b, a) in p["pairs"] for p in panels)
+
+
+@pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "ezc3d_BTS_walk_gaps.c3d", "cmu_85_12_breakdance_long.c3d"])
+def test_preview_panels_are_readable(tmp_path, name):
+    """``staggered preview`` without --dpi: 100 dpi, every panel at least
+    3.5 inches (350 pixels) tall, rows at most 18 inches wide, in a palette
+    PNG.  Before: panels 0.86 to 1.8 inches tall, 12 across 12 inches."""
+    motion = load_input(str(mocap(name)))
+    for count in (8, 12):
+        fig = pictures.preview_figure(motion, at="frames", count=count)
+        fig.canvas.draw()
+        w, h = fig.get_size_inches()
+        assert w <= 18.5
+        assert min(ax.get_position().height for ax in fig.axes) * h >= 3.5
+    out = tmp_path / "p.png"
+    result = run(["preview", mocap(name), "--at", "frames", "12", "-o", out])
+    assert result.exit_code == 0, result.stderr
+    with Image.open(out) as im:
+        assert im.mode == "P" and im.info["dpi"] == pytest.approx((100, 100), abs=0.01)
+        assert im.size[1] >= 2 * 350 and im.size[0] <= 1850, im.size
+    assert 40_000 < out.stat().st_size < 250_000, out.stat().st_size

@@ -90,9 +90,9 @@ def _subject(path: str):
 def preview(input_path, compare, at, fmt, dpi, output, force):
     """Stick figures of FILE (BVH, C3D or document) in side and front views.
 
-    A PNG shows a strip of panels at the pose times (at most 12, evenly
-    chosen); a GIF animates the clip. A document is shown as it bakes.
-    C3D markers are drawn as points.
+    A PNG shows panels at the pose times (at most 12, evenly chosen, 3.5
+    inches tall, up to 18 inches a row); a GIF animates the clip. A document
+    is shown as it bakes. C3D markers are joined by lines along the body.
     """
     from .. import pictures
 
@@ -120,5 +120,5 @@ def preview(input_path, compare, at, fmt, dpi, output, force):
         from ..api import preview as op
 
         fig = op(subject, compare=other, at=what or "poses", count=count, **names)
-        data = pictures.png_bytes(fig, dpi or pictures.DPI)
+        data = pictures.png_bytes(fig, dpi or pictures.DPI, pictures.PREVIEW_COLORS)
     emit(output, data, force)

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import UsageError
-from .common import DPI, FIGSIZE, MAX_TIMING_POSES, png_bytes
+from .common import DPI, FIGSIZE, MAX_TIMING_POSES, PREVIEW_COLORS, png_bytes
 from .curves import curves_figure
 from .gif import gif_durations, preview_gif
 from .preview import MAX_PANELS, preview_figure
@@ -44,6 +44,7 @@ __all__ = [
     "KINDS",
     "MAX_PANELS",
     "MAX_TIMING_POSES",
+    "PREVIEW_COLORS",
     "curves_figure",
     "demo_pictures",
     "gif_durations",
@@ -79,13 +80,14 @@ def demo_pictures(
     *,
     name: str | None = None,
     joints: Sequence[str] | None = None,
-    dpi: float = 72,
+    dpi: float = DPI,
     force: bool = True,
 ) -> list[Path]:
     """Write ``signals.png``, ``timing.png``, ``curves.png`` (of ``joints``,
     default as :func:`curves_figure`) and ``preview.png`` (the document over
-    its source clip) of ``doc`` into ``out_dir`` (created if needed) at a
-    modest ``dpi``, small files for the README; returns the paths."""
+    its source clip) of ``doc`` into ``out_dir`` (created if needed) at
+    ``dpi`` (the preview in a palette of :data:`PREVIEW_COLORS`); returns
+    the paths."""
     from ..io.files import make_parent, write_atomic
 
     out = Path(out_dir)
@@ -100,6 +102,6 @@ def demo_pictures(
     for kind, fig in pictures.items():
         path = out / f"{kind}.png"
         make_parent(str(path))
-        write_atomic(str(path), png_bytes(fig, dpi), force)
+        write_atomic(str(path), png_bytes(fig, dpi, PREVIEW_COLORS if kind == "preview" else None), force)
         paths.append(path)
     return paths

@@ -51,11 +51,28 @@ def _figure(figsize: tuple[float, float] = FIGSIZE) -> Figure:
     return fig
 
 
-def png_bytes(fig: Figure, dpi: float = DPI) -> bytes:
-    """The PNG file of ``fig`` at ``dpi`` dots per inch."""
+#: Colours of a preview PNG: an adaptive palette this large looks the same
+#: as full colour on a line drawing, in a third of the bytes (the c3d.org
+#: walk's 12 poses: 329 kB, 111 kB).
+PREVIEW_COLORS = 64
+
+
+def png_bytes(fig: Figure, dpi: float = DPI, colors: int | None = None) -> bytes:
+    """The PNG file of ``fig`` at ``dpi`` dots per inch; with ``colors``, in
+    an adaptive palette of that many colours (for line drawings such as the
+    preview, not for the plots' colour maps)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    return buf.getvalue()
+    if colors is None:
+        return buf.getvalue()
+    from PIL import Image
+
+    buf.seek(0)
+    with Image.open(buf) as im:
+        small = im.convert("RGB").quantize(colors=colors)
+        out = io.BytesIO()
+        small.save(out, format="PNG", optimize=True, dpi=(dpi, dpi))
+    return out.getvalue()
 
 
 # --- shared pieces ---------------------------------------------------------------

@@ -98,11 +98,12 @@ def preview_gif(
     names = " vs ".join(s.name for s in sticks)
 
     def render(t: float, lab: str):
-        drawn: dict[int, list[np.ndarray]] = {}
+        drawn: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         for ax, which, s, bones, dots in artists:
             drawn.setdefault(id(ax), []).append(_update_stick(bones, dots, s, int(s.at([t])[0]), view, which))
         for ax in axes:
-            _frame_axes(ax, view, _center(drawn[id(ax)][0]), np.concatenate(drawn[id(ax)]))
+            xs, ys = zip(*drawn[id(ax)], strict=True)
+            _frame_axes(ax, view, _center(xs[0]), np.concatenate(xs), np.concatenate(ys))
         title.set_text(f"{names} · {lab.replace(chr(10), ' · ')}")
         fig.canvas.draw()
         rgb = Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3])

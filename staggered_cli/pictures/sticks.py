@@ -38,16 +38,21 @@ if TYPE_CHECKING:
 _LEFT = re.compile(r"^(left|l(?=[A-Z_]))|(_l|\.l|left)$|^lhand$", re.IGNORECASE)
 
 
-def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
+def _figure_points(
+    motion: BvhMotion | MarkerMotion, tree: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
     """World points ``(T, N, 3)`` (file units, NaN in gaps), bones ``(B, 2)``
     into them, and for each bone whether it is on the figure's left.  BVH:
     the joints of the body proper and their End Sites (a static placeholder
-    root would draw a bone from the origin); C3D: the markers, no bones."""
+    root would draw a bone from the origin); C3D: the markers, joined by
+    :func:`marker_bones` (along ``tree``, a document's marker tree and the
+    points it was measured on, where given)."""
     from ..motion import BvhMotion
     from ..skeleton import body_joints, end_site_positions
 
     if not isinstance(motion, BvhMotion):
-        bones, left = marker_bones(motion.labels, motion.points)
+        parents, measured = tree if tree is not None else (None, motion.points)
+        bones, left = marker_bones(motion.labels, measured, parents)
         return motion.points, bones, left, tuple(motion.labels)
     sk = motion.skeleton
     wr, wp = motion.world()
@@ -70,28 +75,118 @@ def _figure_points(motion: BvhMotion | MarkerMotion) -> tuple[np.ndarray, np.nda
     return pts, np.array(bones, dtype=int).reshape(-1, 2), np.array(left, dtype=bool), names
 
 
-def marker_bones(labels: Sequence[str], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def marker_bones(
+    labels: Sequence[str], points: np.ndarray, parents: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Lines to draw between the markers of a set (B, 2), and whether each
-    is on the figure's left (B,): the tree of the most rigid pairs
+    is on the figure's left (B,).
+
+    ``parents`` (M,) is the marker tree to draw (a document's
+    :func:`~staggered_cli.ops.marker_chain.document_tree`); without it the
+    tree of the most rigid pairs
     (:func:`~staggered_cli.ops.marker_chain.rigid_tree`, the tree a
-    randomize or retime of all markers moves them by), so that each body
-    segment's markers are joined and the segments joined where they meet."""
+    randomize or retime of all markers moves them by).  Its lines that no
+    body segment could be are left out: longer than :data:`LONGEST_LINE`
+    of the figure height, or across the body (a marker on the left to one
+    on the right, other than a mirrored pair such as the two hip markers).
+    The parts this leaves, and markers the tree does not hold, are then
+    joined by the most rigid pairs that are neither (each link the one
+    whose distance varies least, as the rigid tree's), so that each body
+    segment's markers are joined, the segments where they meet, and the
+    limbs to the pelvis on their own side.
+    """
+    from ..motion import MarkerMotion
     from ..ops.marker_chain import rigid_tree
 
-    parents = rigid_tree(points)
-    child = np.flatnonzero(parents >= 0)
-    bones = np.column_stack([parents[child], child]).astype(int).reshape(-1, 2)
-    if len(bones):  # the tree must join every marker: not with lines across the body
-        from ..motion import MarkerMotion
+    M = len(labels)
+    if parents is None:
+        parents = rigid_tree(points)
+    spread, length = _pair_stats(points)
+    size = MarkerMotion(tuple(labels), points, 1.0).figure_height()
+    sides = np.array(_sides(labels))
+    sided = sides != ""
+    cross = sided[:, None] & sided[None, :] & (sides[:, None] != sides[None, :])
+    for a, b in side_pairs(labels):
+        cross[a, b] = cross[b, a] = False
+    with np.errstate(invalid="ignore"):
+        allowed = (length <= LONGEST_LINE * size) & ~cross & np.isfinite(spread)
+    group = np.arange(M)
 
-        size = MarkerMotion(tuple(labels), points, 1.0).figure_height()
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a pair never seen together
-            length = np.nanmedian(quat.norm(points[:, bones[:, 0]] - points[:, bones[:, 1]]), axis=0)
-        bones = bones[~(length > LONGEST_LINE * size)]
-    sides = _sides(labels)
-    left = np.array([sides[a] == "left" and sides[b] == "left" for a, b in bones], dtype=bool)
-    return bones, left
+    def root(i: int) -> int:
+        while group[i] != i:
+            group[i] = group[group[i]]
+            i = int(group[i])
+        return i
+
+    def join(a: int, b: int) -> bool:
+        ra, rb = root(a), root(b)
+        if ra == rb:
+            return False
+        group[rb] = ra
+        return True
+
+    bones: list[tuple[int, int]] = []
+    for c in np.flatnonzero(parents >= 0):
+        p = int(parents[c])
+        if allowed[p, c] and join(p, int(c)):
+            bones.append((p, int(c)))
+    a, b = np.triu_indices(M, 1)
+    ok = allowed[a, b]
+    a, b = a[ok], b[ok]
+    for k in np.argsort(spread[a, b], kind="stable"):
+        if len(bones) == M - 1:
+            break
+        if join(int(a[k]), int(b[k])):
+            bones.append((int(a[k]), int(b[k])))
+    out = _rooted(bones, parents, M)
+    left = np.array([sides[i] == "left" and sides[j] == "left" for i, j in out], dtype=bool)
+    return out, left
+
+
+def _rooted(bones: list[tuple[int, int]], parents: np.ndarray, M: int) -> np.ndarray:
+    """``bones`` (a forest) as (parent, child) pairs, each part hanging from
+    the root of ``parents`` it holds (the most rigid marker), else from its
+    first marker: a marker in a gap is bridged to its parent's parent."""
+    near: list[list[int]] = [[] for _ in range(M)]
+    for a, b in bones:
+        near[a].append(b)
+        near[b].append(a)
+    starts = [int(r) for r in np.flatnonzero(parents < 0)] + list(range(M))
+    done = np.zeros(M, dtype=bool)
+    out: list[tuple[int, int]] = []
+    for r in starts:
+        if done[r]:
+            continue
+        done[r] = True
+        todo = [r]
+        while todo:
+            i = todo.pop()
+            for j in near[i]:
+                if not done[j]:
+                    done[j] = True
+                    out.append((i, j))
+                    todo.append(j)
+    return np.array(out, dtype=int).reshape(-1, 2)
+
+
+def _pair_stats(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Spread (standard deviation over frames) and median of the distance of
+    every pair of markers (M, M), gaps ignored: infinite spread and NaN
+    length for a pair seen together in fewer than two frames.  Over at most
+    400 frames evenly spread, and at most 4 million distances at once."""
+    T, M, _ = points.shape
+    frames = min(T, 400, max(10, 4_000_000 // max(M * M, 1)))
+    pts = points[np.unique(np.linspace(0, T - 1, frames).astype(int))]
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # pairs never seen together
+        sq = np.sum(pts * pts, axis=-1)
+        d2 = sq[:, :, None] + sq[:, None, :] - 2.0 * np.einsum("tmk,tnk->tmn", pts, pts)
+        d = np.sqrt(np.maximum(d2, 0.0))  # (F, M, M), NaN where a marker is missing
+        n = np.isfinite(d).sum(axis=0)
+        spread = np.where(n >= 2, np.nanstd(d, axis=0), np.inf)
+        length = np.where(n >= 2, np.nanmedian(d, axis=0), np.nan)
+    np.fill_diagonal(spread, np.inf)
+    return spread, length
 
 
 #: Lines between markers longer than this share of the figure height (median
@@ -134,11 +229,15 @@ def _stick(subject: Document | BvhMotion | MarkerMotion, name: str) -> _Stick:
     from ..motion import BvhMotion
     from ..ops.bake import bake
 
-    pose_t = None
+    pose_t = tree = None
     if isinstance(subject, Document):
         pose_t = subject.pose_t
+        if subject.kind != "bvh":  # the tree its timing edits keep, over the clip it was made from
+            from ..ops.marker_chain import document_tree
+
+            tree = (document_tree(subject), subject.source.points)
         subject = bake(subject)
-    pts, bones, left, names = _figure_points(subject)
+    pts, bones, left, names = _figure_points(subject, tree)
     markers = not isinstance(subject, BvhMotion)
     return _Stick(name, pts, bones, left, float(subject.frame_time), pose_t, names, markers)
 
