@@ -1044,7 +1044,7 @@ def view(
     from .io.page import page_pieces
     from .model.document import Document
     from .motion import BvhMotion, MarkerMotion
-    from .view import page_data
+    from .viewer import page_data
 
     kinds = (Document, BvhMotion, MarkerMotion)
     others = () if compare is None else (compare,) if isinstance(compare, kinds) else tuple(compare)

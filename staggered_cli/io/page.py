@@ -1,5 +1,5 @@
 """The HTML page of ``staggered view``: the package's page files
-(``staggered_cli/view/page.html``, ``page.css``, ``page.js`` and the
+(``staggered_cli/viewer/page.html``, ``page.css``, ``page.js`` and the
 vendored ``vendor/three.min.js``, read with :mod:`importlib.resources`)
 with the motion laid in, one file that needs no network and no server.
 
@@ -46,7 +46,7 @@ def check_page_name(output: str) -> None:
 
 def asset(name: str) -> str:
     """The text of a page file of the package (``page.js``, ``vendor/three.min.js``, ...)."""
-    node = resources.files("staggered_cli.view")
+    node = resources.files("staggered_cli.viewer")
     for part in name.split("/"):
         node = node.joinpath(part)
     return node.read_text(encoding="utf-8")
@@ -59,7 +59,7 @@ def _script_safe(text: str) -> str:
 
 def page_pieces(meta: dict, blobs: list[bytes]) -> list[bytes]:
     """The page (UTF-8 pieces, to be written one after another) showing
-    ``meta`` (see :func:`staggered_cli.view.page_data`) and the float32
+    ``meta`` (see :func:`staggered_cli.viewer.page_data`) and the float32
     points ``blobs`` of its figures."""
     html = asset("page.html")
     for slot in _SLOTS:

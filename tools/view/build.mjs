@@ -1,4 +1,4 @@
-// node build.mjs: bundles entry.js into ../../staggered_cli/view/vendor/three.min.js
+// node build.mjs: bundles entry.js into ../../staggered_cli/viewer/vendor/three.min.js
 // with fixed options (the same bytes from the same pinned versions), copies
 // three's LICENSE beside it and records the versions and the sha256 in
 // three.version.json (tests/test_view.py checks the bundle against it).
@@ -9,7 +9,7 @@ import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
 
 const here = dirname(fileURLToPath(import.meta.url));
-const vendor = join(here, "..", "..", "staggered_cli", "view", "vendor");
+const vendor = join(here, "..", "..", "staggered_cli", "viewer", "vendor");
 const out = join(vendor, "three.min.js");
 const version = (name) => JSON.parse(readFileSync(join(here, "node_modules", name, "package.json"), "utf8")).version;
 

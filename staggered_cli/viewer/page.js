@@ -1,5 +1,5 @@
 // staggered view: plays the figures laid in this page (see
-// staggered_cli/view/__init__.py for the data) with three.js, and draws the
+// staggered_cli/viewer/__init__.py for the data) with three.js, and draws the
 // staggered timing of a document under the timeline.
 (function () {
   "use strict";
@@ -186,7 +186,7 @@
     if (Math.hypot(dx, dz) < 1e-6) { dx = 1; dz = 0; }
     const len = Math.hypot(dx, dz);
     const side = new THREE.Vector3(-dz / len, 0, dx / len); // across the travel, level
-    const dist = (0.8 * height) / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) + 0.6 * height;
+    const dist = (0.7 * height) / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) + 0.3 * height;
     followPoint(t, followed);
     controls.target.copy(followed);
     camera.position.copy(followed).addScaledVector(side, dist).add(new THREE.Vector3(0, 0.35 * height, 0));
@@ -456,5 +456,6 @@
   }
   requestAnimationFrame(tick);
   // for scripts and tests: the state and the time of each pose
-  window.staggeredView = { state, poseT, setTime, jumpPose, camera, controls, height, box, figures: figures.map((f) => ({ name: f.name, color: f.color })) };
+  const stripX = (t) => stX(t, strip.clientWidth);
+  window.staggeredView = { state, poseT, setTime, jumpPose, stripX, camera, controls, height, box, figures: figures.map((f) => ({ name: f.name, color: f.color })) };
 })();

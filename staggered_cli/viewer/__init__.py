@@ -188,7 +188,8 @@ def page_data(
 
     subjects = (subject, *compare)
     names = tuple(names) + tuple("" for _ in range(len(subjects) - len(names)))
-    figures = [figure(s, n or _own_name(s) or f"motion {i + 1}") for i, (s, n) in enumerate(zip(subjects, names, strict=True))]
+    named = enumerate(zip(subjects, names, strict=True))
+    figures = [figure(s, n or _own_name(s) or f"motion {i + 1}") for i, (s, n) in named]
     meta: dict[str, Any] = {
         "title": figures[0].name,
         "floor": figures[0].floor,
