@@ -155,3 +155,29 @@ def test_document_compared_with_its_source(page, pages, name):
     page.mouse.click(box["x"] + x, box["y"] + box["height"] / 2)
     assert page.evaluate("window.staggeredView.state.t") == pytest.approx(pose_t[2], abs=1e-9)
     assert not visit.errors, visit.errors
+
+
+@pytest.mark.skipif(not chrome.REQUIRED, reason="the one-hour page (263 MB, a minute) runs under make test-browser")
+@pytest.mark.skipif("cmu_01_01_forward_jumps.bvh" not in BVH_FILES, reason="no CMU 01_01 in ../shared/mocap")
+def test_one_hour_clip_at_120_hz_of_31_joints_loads(page, pages):
+    """Issue 35: an hour at 120 Hz of a 31-joint skeleton (CMU 01_01 tiled)
+    gives a page that loads and plays (bench/bench_view.py measures it)."""
+    from staggered_cli.io.page import page_pieces
+    from staggered_cli.viewer import page_data
+
+    clip = dev_motion("cmu_01_01_forward_jumps.bvh")
+    frames = round(3600 / clip.frame_time)
+    hour = clip.with_channels(np.tile(clip.channels, (-(-frames // clip.n_frames), 1))[:frames], same_text=False)
+    assert hour.skeleton.n_joints == 31 and hour.n_frames * hour.frame_time >= 3600
+    meta, blobs = page_data(hour, names=("one hour",))
+    path = pages / "hour.html"
+    with open(path, "wb") as f:
+        for piece in page_pieces(meta, blobs):
+            f.write(piece)
+    del blobs
+    assert path.stat().st_size < 4.5e6 * 60 + 2e6  # about 4.4 MB a minute (38 points, float32, base64)
+    visit = chrome.open_page(page, path, "t=1800", timeout=60.0)
+    assert not visit.errors and not visit.foreign, (visit.errors, visit.foreign)
+    assert page.evaluate("window.staggeredView.state.t") == 1800
+    _check_figure(chrome.scene_pixels(page))
+    path.unlink()
