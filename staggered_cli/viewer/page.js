@@ -336,7 +336,7 @@
     g.clearRect(0, 0, w, strip.height);
     const y = (r) => HEAD + r * rowH;
     timing.rows.forEach((row, r) => { if (row.shade) { g.fillStyle = "#ececec"; g.fillRect(0, y(r), w, rowH); } });
-    g.save(); g.beginPath(); g.rect(LABELS, 0, w - LABELS, strip.height); g.clip();
+    g.save(); g.beginPath(); g.rect(LABELS - 10, 0, w - LABELS + 10, strip.height); g.clip();
     g.strokeStyle = "#c4c4c4"; g.lineWidth = 1;
     g.fillStyle = "#444"; g.font = "10px system-ui, sans-serif"; g.textAlign = "center"; g.textBaseline = "top";
     let lastLabel = -1e9;
