@@ -457,5 +457,13 @@
   requestAnimationFrame(tick);
   // for scripts and tests: the state and the time of each pose
   const stripX = (t) => stX(t, strip.clientWidth);
-  window.staggeredView = { state, poseT, setTime, jumpPose, stripX, camera, controls, height, box, figures: figures.map((f) => ({ name: f.name, color: f.color })) };
+  // where point p of figure i is drawn, in CSS pixels of the 3D view (null: hidden)
+  function screenOf(i, p) {
+    const f = figures[i], v = new THREE.Vector3().fromArray(f.pointPos, p * 3);
+    if (v.x === HIDDEN) return null;
+    v.project(camera);
+    const r = canvas.getBoundingClientRect();
+    return { x: ((v.x + 1) / 2) * r.width, y: ((1 - v.y) / 2) * r.height };
+  }
+  window.staggeredView = { state, poseT, setTime, jumpPose, stripX, screenOf, camera, controls, height, box, figures: figures.map((f) => ({ name: f.name, color: f.color })) };
 })();

@@ -128,11 +128,30 @@ def test_document_compared_with_its_source(page, pages, name):
     assert f"at pose {k} of {len(pose_t)}" in page.locator("#clock").inner_text()
     # two figures in two colours, with a legend
     rgb = chrome.scene_pixels(page)
-    _check_figure(rgb, BLUE)
+    at_k = _check_figure(rgb, BLUE)
     orange = chrome.colour_mask(rgb, ORANGE)
     assert orange.sum() > 40, f"the compared figure shows in {orange.sum()} pixels"
     assert page.locator("#legend .swatch").count() == 2
     assert "edited" in page.locator("#legend").inner_text() and name in page.locator("#legend").inner_text()
+    # another pose draws another figure, inside the same framing
+    _set_hash(page, f"#pose={k + 2}", pose_t[k + 2])
+    other = chrome.scene_pixels(page)
+    top, bottom, left, right = _bbox(at_k | _check_figure(other, BLUE))
+    moved = np.abs(rgb.astype(int) - other.astype(int)).sum(axis=2)[top : bottom + 1, left : right + 1] > 30
+    assert moved.sum() > 100
+    # a point's name on hover
+    labels = meta["figures"][0]["labels"]
+    spots = page.evaluate(f"[...Array({len(labels)}).keys()].map((p) => window.staggeredView.screenOf(0, p))")
+    xy = np.array([[s["x"], s["y"]] if s else [np.nan, np.nan] for s in spots])
+    gap = np.linalg.norm(xy[:, None] - xy[None], axis=-1) + np.diag(np.full(len(xy), np.inf))
+    p = int(np.nanargmax(np.where(np.isfinite(xy[:, 0]), np.nanmin(gap, axis=1), -1)))  # the most isolated point
+    where = spots[p]
+    box = page.locator("#scene").bounding_box()
+    page.mouse.move(box["x"] + where["x"], box["y"] + where["y"])
+    page.wait_for_function("!document.getElementById('tip').hidden")
+    assert page.locator("#tip").inner_text().startswith(labels[p])
+    page.mouse.move(0, 0)
+    _set_hash(page, f"#pose={k}", pose_t[k])
     # the timing strip is drawn, with the poses of the timeline
     assert page.locator("#strip").is_visible() and page.locator("#strip").bounding_box()["height"] > 60
     # keys: ] and [ step through the poses, arrows a frame, space plays
