@@ -12,6 +12,7 @@ import json
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -197,7 +198,7 @@ def test_bad_input_is_one_line_and_no_file(tmp_path, case, expect):
         out = tmp_path / "x.png"
     before = sorted(p.name for p in tmp_path.iterdir())
     result = subprocess.run(
-        [str(Path(shutil.which("staggered") or ROOT / ".venv/bin/staggered")), "view", str(src), "-o", str(out)],
+        [sys.executable, "-m", "staggered_cli", "view", str(src), "-o", str(out)],
         capture_output=True,
         text=True,
     )
