@@ -5,6 +5,9 @@
 # make golden regenerate tests/golden/ on purpose (tests never do)
 # make test-blender  set up .venv-blender (Python 3.11, bpy 5.0.1) and run the Blender round trip tests
 # make test-gltf  install node (apt, as root, if missing) and the Khronos glTF-Validator (tools/gltf), run its tests
+# make test-browser  install chromium (apt, as root, if missing), Playwright and tools/view; run the browser tests
+# make view-bundle  rebuild staggered_cli/viewer/vendor/three.min.js from the pinned three and esbuild (tools/view)
+# make screenshots  regenerate docs/pictures/view.png, the README's picture of `staggered view` (review it first)
 # make batch  IN=dir OUT=dir [STEPS='cull --keep 30%|...']: staggered batch over a library
 
 SHELL := /bin/bash
@@ -21,7 +24,7 @@ PYTEST_ARGS ?=
 # (its module fixtures are built once); TEST_WORKERS=0 runs them in this one
 TEST_WORKERS ?= 2
 
-.PHONY: all demo test test-blender test-gltf lint bench golden install clean batch samples pictures
+.PHONY: all demo test test-blender test-gltf test-browser view-bundle screenshots chromium lint bench golden install clean batch samples pictures
 
 all: test
 
@@ -76,6 +79,49 @@ $(GLTF_STAMP): $(GLTF_TOOLS)/package.json $(GLTF_TOOLS)/package-lock.json
 test-gltf: $(STAMP) $(GLTF_STAMP)
 	@$(BYTECODE)
 	GLTF_VALIDATOR_REQUIRED=1 $(BIN)/python -m pytest -n 0 -m gltf_validator tests/test_gltf.py $(PYTEST_ARGS)
+
+# The page of `staggered view` carries three.js (npm package three, MIT) as
+# one minified IIFE, built by tools/view/build.mjs with the esbuild pinned in
+# tools/view/package-lock.json: the same bytes every time (the browser tests
+# rebuild it and compare; tests/test_view.py checks its recorded sha256).
+VIEW_TOOLS := tools/view
+VIEW_STAMP := $(VIEW_TOOLS)/node_modules/.staggered-installed
+NEED_NODE = @if ! command -v node >/dev/null || ! command -v npm >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update && apt-get install -y nodejs npm; \
+	  else echo "node and npm are missing: install them (Debian: apt-get install -y nodejs npm, as root)" >&2; exit 1; fi; \
+	fi
+
+$(VIEW_STAMP): $(VIEW_TOOLS)/package.json $(VIEW_TOOLS)/package-lock.json
+	$(NEED_NODE)
+	cd $(VIEW_TOOLS) && npm ci --no-audit --no-fund
+	touch $@
+
+view-bundle: $(VIEW_STAMP)
+	cd $(VIEW_TOOLS) && node build.mjs
+
+# The browser tests: Debian's chromium (no browser download: Playwright
+# launches the system one) and Playwright for Python in .venv.  With
+# STAGGERED_BROWSER_REQUIRED=1 a missing browser fails them (under plain
+# `make test` they skip, saying why).
+BROWSER_STAMP := $(VENV)/.browser-installed
+
+$(BROWSER_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -e '.[dev,browser]'
+	touch $@
+
+chromium:
+	@if ! command -v chromium >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; \
+	  else echo "chromium is missing: install it (Debian: apt-get install -y chromium, as root)" >&2; exit 1; fi; \
+	fi
+
+test-browser: chromium $(BROWSER_STAMP) $(VIEW_STAMP)
+	@$(BYTECODE)
+	STAGGERED_BROWSER_REQUIRED=1 $(BIN)/python -m pytest -n 0 -m browser tests/browser tests/test_view.py $(PYTEST_ARGS)
+
+screenshots: chromium $(BROWSER_STAMP)
+	@$(BYTECODE)
+	$(BIN)/python -m tests.browser.screenshot docs/pictures/view.png
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

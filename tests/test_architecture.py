@@ -30,7 +30,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "entry": ("staggered_cli.__main__",),
     "cli": ("staggered_cli.cli",),
     "batching": ("staggered_cli.batching",),
-    "library": ("staggered_cli", "staggered_cli.api", "staggered_cli.pictures"),
+    "library": ("staggered_cli", "staggered_cli.api", "staggered_cli.pictures", "staggered_cli.viewer"),
     "io": ("staggered_cli.io",),
     "ops": ("staggered_cli.ops",),
 }

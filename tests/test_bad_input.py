@@ -625,14 +625,15 @@ def _bad_inputs(documents, tmp_path: Path) -> list[Path]:
     return out
 
 
-@pytest.mark.parametrize("command", [c for c in ("plot", "preview") if c in COMMANDS])
+@pytest.mark.parametrize("command", [c for c in ("plot", "preview", "view") if c in COMMANDS])
 def test_picture_commands_refuse_bad_input(documents, tmp_path, command):
     inputs = _bad_inputs(documents, tmp_path)
     keep = {p.name for p in inputs}
+    out = "out.html" if command == "view" else "out.png"
     for inp in inputs:
         if command == "plot" and inp.suffix != ".stag":
             continue
-        result, elapsed = invoke([command, inp, "-o", tmp_path / "out.png"])
+        result, elapsed = invoke([command, inp, "-o", tmp_path / out])
         assert_clean(result, elapsed)
         assert_refused(result, str(inp), tmp_path, keep, to_stdout=False, code=(1,))
 

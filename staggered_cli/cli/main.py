@@ -56,6 +56,7 @@ COMMANDS: dict[str, str] = {
     "new": "staggered_cli.cli.new:new",
     "plot": "staggered_cli.cli.plot:plot",
     "preview": "staggered_cli.cli.preview:preview",
+    "view": "staggered_cli.cli.view:view",
     "batch": "staggered_cli.cli.batch:batch",
 }
 
