@@ -79,21 +79,16 @@ def figure(subject: Document | BvhMotion | MarkerMotion, name: str) -> Figure:
     from ..model.document import Document
     from ..motion import BvhMotion
     from ..ops.bake import bake
-    from ..pictures.sticks import _figure_points, _sides
+    from ..pictures.sticks import _figure_points
 
     tree = None
     if isinstance(subject, Document):
-        if subject.kind == "c3d" and subject.parameters.get("marker_tree"):
+        if subject.kind != "bvh":  # its marker tree (succession, randomize), as preview draws it
             from ..ops.marker_chain import document_tree
 
-            tree = document_tree(subject)
+            tree = (document_tree(subject), subject.source.points)
         subject = bake(subject)
-    pts, bones, left, labels = _figure_points(subject)
-    if tree is not None:  # the document's own marker tree (succession, randomize)
-        child = np.flatnonzero(tree >= 0)
-        bones = np.column_stack([tree[child], child]).astype(int).reshape(-1, 2)
-        sides = _sides(labels)
-        left = np.array([sides[a] == sides[b] == "left" for a, b in bones], dtype=bool)
+    pts, bones, left, labels = _figure_points(subject, tree)
     page_pts = _turn_and_scale(subject, pts)
     kind = "skeleton" if isinstance(subject, BvhMotion) else "markers"
     return Figure(
