@@ -1,0 +1,223 @@
+"""Partial poses: where a body part keys itself (issue 37; the paper's section 6).
+
+The paper leaves partial poses (poses that control a subset of the
+variables) unfinished: its poses own every variable.  When the arms move to
+their own rhythm (a gesture over a walk), their extremes fall between the
+whole-body poses.  After the whole-body poses are placed, each body part
+(``@left-arm``, ``@right-arm``, ``@left-leg``, ``@right-leg``, ``@spine``,
+``@head``, :func:`part_columns`) is looked at alone:
+
+1. **The part's pose probability** ``P_part(t) = tent(Σ w_i p_i / Σ w_i)``
+   over the part's variables only: the construction of ``P`` (paper 4.1)
+   restricted to the part.  Its local maxima are the part's feature
+   clusters.
+2. **The part's feature sites**: the frames within half the filter width
+   of a maximum of ``P_part`` where the part moves (its own amount of
+   motion, the weighted speed of its variables averaged as the whole-body
+   gate is, reaches the same ``significance`` in figure heights a second),
+   on the placement grid, and not covered: the variables holding
+   :data:`COVERED_SHARE` of the part's weight have no knot (a whole-body
+   pose time or a refined extreme) within ``min_spacing`` there.
+3. **Placed by the fit, restricted to the part**: greedily, the site where
+   one more knot of every part variable cuts the part's spline misfit most
+   (the placement proxy of :mod:`.placement` on the part's variables: the
+   segments from each variable's knot before to its knot after), as long
+   as one earns its keep: the misfit of those segments falls to
+   :data:`PART_GAIN` of what it was or less, and the misfit it removes
+   per knot is at least :data:`PART_VALUE` times what a whole-body pose
+   that a cull would take first holds in place per knot
+   (:func:`pose_value`).  A part's partial poses are at least
+   :data:`PART_SPACING` seconds apart.
+
+Parts whose features the whole-body poses already cover get none: a plain
+walk gains few or none.  C3D clips have no body parts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import names as joint_names
+from ..errors import UsageError
+from ..motion import BvhMotion
+from . import placement
+from .probability import local_maxima
+from .smoothing import tent_filter
+
+#: Fewest seconds between two partial poses of one part.
+PART_SPACING = 0.3
+#: The whole-body poses a cull would take away first: this percentile of their value per knot.
+VALUE_PERCENTILE = 25.0
+#: A feature of a part is covered where the variables of at least this share
+#: of the part's weight have a knot within ``min_spacing``.
+COVERED_SHARE = 0.5
+#: A partial pose stays where it cuts the part's misfit around it to this share or less.
+PART_GAIN = 0.6
+#: ... and removes, per knot, at least this share of the misfit an average
+#: whole-body pose's knot holds in place.
+PART_VALUE = 0.5
+
+
+def part_roots(motion: BvhMotion) -> dict[str, int]:
+    """Body part -> its root joint (:func:`staggered_cli.names.body_part`),
+    for the parts the skeleton has."""
+    sk = motion.skeleton
+    roots = {}
+    for part in joint_names.PARTS:
+        try:
+            roots[part] = joint_names.body_part(part, sk.names, sk.parents)
+        except UsageError:
+            continue
+    return roots
+
+
+def part_joints(motion: BvhMotion) -> dict[str, np.ndarray]:
+    """Body part -> the indices of its joints: the subtree of the part's
+    root less the other parts' below it (the spine's arms and head).  Parts
+    the skeleton does not have are left out."""
+    sk = motion.skeleton
+    roots = part_roots(motion)
+    out = {}
+    for part, r in roots.items():
+        own = set(int(j) for j in sk.subtree(r))
+        for other, o in roots.items():
+            if other != part and o != r and o in own:
+                own -= set(int(j) for j in sk.subtree(o))
+        if own:
+            out[part] = np.array(sorted(own), dtype=int)
+    return out
+
+
+def part_columns(motion: BvhMotion, layout) -> dict[str, np.ndarray]:
+    """Body part -> the columns (in the document's variable order:
+    translations first, then rotations) of the variables that drive its
+    joints; ``layout``: the variables' ``(kind, names, targets, ...)``."""
+    targets = np.concatenate([np.asarray(v[2], dtype=int) for v in layout]) if layout else np.zeros(0, int)
+    return {part: np.flatnonzero(np.isin(targets, joints)) for part, joints in part_joints(motion).items()}
+
+
+def part_probability(
+    p: np.ndarray, weights: np.ndarray, cols: np.ndarray, filter_width: float, rate: float
+) -> np.ndarray:
+    """``P_part`` (T,): the pose probability over the columns ``cols`` alone."""
+    w = np.asarray(weights, dtype=float)[cols]
+    den = float(w.sum())
+    mean = p[:, cols] @ w / den if den > 0 else np.zeros(p.shape[0])
+    return tent_filter(mean, filter_width, rate)
+
+
+def part_speed(proxy: placement.Proxy, sel: np.ndarray, rate: float, height: float) -> np.ndarray:
+    """(T,) how fast the proxy variables ``sel`` move the body, figure heights
+    a second (the weighted length of each step of their values)."""
+    x = proxy.x[:, sel].astype(float)
+    T = x.shape[0]
+    out = np.zeros(T)
+    if T < 2 or len(sel) == 0:
+        return out
+    step = np.linalg.norm(np.diff(x, axis=0), axis=2) @ proxy.w[sel] * rate / max(height, 1e-12)
+    out[:-1] += 0.5 * step
+    out[1:] += 0.5 * step
+    return out
+
+
+def _neighbours(knots: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per candidate frame (n,) and variable (columns of ``knots (K, m)``,
+    each sorted): the knot before and the knot after."""
+    K = knots.shape[0]
+    a = np.empty((len(f), knots.shape[1]))
+    b = np.empty_like(a)
+    for i in range(knots.shape[1]):
+        j = np.clip(np.searchsorted(knots[:, i], f, side="left"), 1, K - 1)
+        a[:, i] = knots[j - 1, i]
+        b[:, i] = knots[j, i]
+    return a, b
+
+
+def pose_value(proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray) -> float:
+    """The misfit a whole-body pose that a cull would take first holds in
+    place, per knot: the proxy cost its removal adds (the segments around it
+    joined) over its variables, at the :data:`VALUE_PERCENTILE` of the
+    interior poses."""
+    K = len(pose_f)
+    V = len(proxy.cols)
+    if K < 3 or V == 0:
+        return 0.0
+    kn = pose_f[:, None] + refine_f[:, proxy.cols].astype(float)
+    ks = np.arange(1, K - 1)
+    chains = np.stack([kn[ks - 1], kn[ks], kn[ks + 1]], axis=-1)  # (n, V, 3)
+    with_k = placement.span_costs(proxy, chains)
+    without = placement.span_costs(proxy, chains[..., [0, 2]])
+    per = np.sum(without - with_k, axis=1) / V
+    return float(np.percentile(per, VALUE_PERCENTILE))
+
+
+def find_partial(
+    proxy: placement.Proxy,
+    p: np.ndarray,
+    weights: np.ndarray,
+    columns: dict[str, np.ndarray],
+    pose_f: np.ndarray,
+    refine_f: np.ndarray,
+    *,
+    rate: float,
+    height: float,
+    filter_width: float,
+    refine_window: float,
+    significance: float,
+    spacing: int,
+    stride: int,
+) -> dict[str, np.ndarray]:
+    """Body part -> the frames (sorted) of its partial poses (see the module doc).
+
+    Parameters
+    ----------
+    proxy : the placement proxy of the clip's variables.
+    p, weights : the local evidence (T, V) and its weights (V,).
+    columns : body part -> its variables' columns (:func:`part_columns`).
+    pose_f, refine_f : the whole-body poses' frames (K,) and refinements (K, V) in frames.
+    spacing : ``min_spacing`` in frames; stride: the placement grid, frames.
+    """
+    T = p.shape[0]
+    out: dict[str, np.ndarray] = {}
+    reach = max(int(round(0.5 * filter_width * rate)), 1)
+    gap = max(int(round(PART_SPACING * rate)), 1)
+    value = pose_value(proxy, pose_f, refine_f)
+    where = {int(c): k for k, c in enumerate(proxy.cols)}
+    for part, cols in columns.items():
+        sel = np.array([where[int(c)] for c in cols if int(c) in where], dtype=int)
+        if len(sel) == 0 or T < 3:
+            continue
+        sub = placement.Proxy(proxy.x[:, sel], proxy.w[sel], proxy.cols[sel])
+        P = part_probability(p, weights, cols, filter_width, rate)
+        gate = tent_filter(part_speed(proxy, sel, rate, height), 2.0 * refine_window, rate) >= significance
+        knots = np.sort(pose_f[:, None] + refine_f[:, sub.cols].astype(float), axis=0)  # (K, n)
+        sites = np.zeros(T, dtype=bool)
+        for m in local_maxima(P):
+            if gate[m]:
+                sites[max(m - reach, 1) : min(m + reach, T - 2) + 1] = True
+        grid = np.arange(0, T, stride)
+        grid = grid[sites[grid]]
+        taken: list[int] = []
+        n = len(sel)
+        while len(grid):
+            near = (np.abs(knots[:, None, :] - grid[None, :, None]) <= spacing).any(axis=0)  # (G, n)
+            free = near.astype(float) @ sub.w < COVERED_SHARE * sub.w.sum()
+            for f in taken:
+                free &= np.abs(grid - f) >= gap
+            grid = grid[free]
+            if len(grid) == 0:
+                break
+            a, b = _neighbours(knots, grid.astype(float))
+            old = placement.span_costs(sub, np.stack([a, b], axis=-1)).sum(axis=1)
+            split = np.stack([a, np.broadcast_to(grid[:, None].astype(float), a.shape), b], axis=-1)
+            new = placement.span_costs(sub, split).sum(axis=1)
+            ok = (new <= PART_GAIN * old) & (old - new >= PART_VALUE * value * n)
+            if not ok.any():
+                break
+            best = int(np.argmax(np.where(ok, old - new, -np.inf)))
+            f = int(grid[best])
+            taken.append(f)
+            knots = np.sort(np.concatenate([knots, np.full((1, n), float(f))]), axis=0)
+        if taken:
+            out[part] = np.array(sorted(taken), dtype=int)
+    return out
