@@ -53,6 +53,7 @@ Significance gate
 from __future__ import annotations
 
 import bisect
+from dataclasses import replace
 
 import numpy as np
 
@@ -64,6 +65,7 @@ from ..model.kinds import ROTATION
 from ..model.variables import dense_variables, fits_by_column, from_motion, variable_layout
 from ..motion import BvhMotion, MarkerMotion, rate_problem
 from ..signals import partial as partial_poses
+from . import partial as partial_ops
 from ..signals import placement, probability, trails
 from ..signals.smoothing import DEFAULT_FILTER_WIDTH, DEFAULT_SMOOTHING, tent_filter
 
@@ -612,9 +614,9 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain)
     refine = refine_f * float(motion.frame_time)
-    parts = {}
+    candidates = []
     if partial:
-        parts = partial_poses.find_partial(
+        candidates = partial_poses.find_partial(
             proxy,
             ev.p,
             ev.weights,
@@ -642,8 +644,6 @@ def extract(
         "contact_joints": list(joints),
         "contact_pulse": probability.DEFAULT_PULSE,
     }
-    if partial:
-        parameters["partial_poses"] = {p: (f * float(motion.frame_time)).tolist() for p, f in parts.items()}
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
     if fits_by_column(motion):  # a long clip's fit makes its rotations a joint at a time
         motion.release_local()
@@ -658,6 +658,10 @@ def extract(
         signals=sigs,
         parameters=parameters,
     )
+    if partial:  # the candidates that earn their knots in the real spline layer
+        found = partial_ops.confirmed(doc, candidates)
+        parameters = dict(doc.parameters, partial_poses={p: t.tolist() for p, t in found.items()})
+        doc = replace(doc, parameters=parameters)
     if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
         motion.release_local()
     return doc

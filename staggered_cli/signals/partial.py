@@ -52,10 +52,10 @@ VALUE_PERCENTILE = 25.0
 #: of the part's weight have a knot within ``min_spacing``.
 COVERED_SHARE = 0.5
 #: A partial pose stays where it cuts the part's misfit around it to this share or less.
-PART_GAIN = 0.6
+PART_GAIN = 0.75
 #: ... and removes, per knot, at least this share of the misfit an average
 #: whole-body pose's knot holds in place.
-PART_VALUE = 0.5
+PART_VALUE = 0.25
 
 
 def part_roots(motion: BvhMotion) -> dict[str, int]:
@@ -166,8 +166,10 @@ def find_partial(
     significance: float,
     spacing: int,
     stride: int,
-) -> dict[str, np.ndarray]:
-    """Body part -> the frames (sorted) of its partial poses (see the module doc).
+) -> list[tuple[str, int]]:
+    """The candidate partial poses (see the module doc), (part, frame), the
+    most misfit removed first: :func:`staggered_cli.ops.partial.confirmed`
+    keeps those that earn their knots in the real spline layer.
 
     Parameters
     ----------
@@ -178,7 +180,7 @@ def find_partial(
     spacing : ``min_spacing`` in frames; stride: the placement grid, frames.
     """
     T = p.shape[0]
-    out: dict[str, np.ndarray] = {}
+    found: list[tuple[float, str, int]] = []
     reach = max(int(round(0.5 * filter_width * rate)), 1)
     gap = max(int(round(PART_SPACING * rate)), 1)
     value = pose_value(proxy, pose_f, refine_f)
@@ -190,13 +192,21 @@ def find_partial(
         sub = placement.Proxy(proxy.x[:, sel], proxy.w[sel], proxy.cols[sel])
         P = part_probability(p, weights, cols, filter_width, rate)
         gate = tent_filter(part_speed(proxy, sel, rate, height), 2.0 * refine_window, rate) >= significance
-        knots = np.sort(pose_f[:, None] + refine_f[:, sub.cols].astype(float), axis=0)  # (K, n)
+        ext = pose_f[:, None] + refine_f[:, sub.cols].astype(float)  # (K, n) the extreme knots
+        edit = np.broadcast_to(pose_f[:, None].astype(float), ext.shape)  # and the editing knots
+        knots = np.sort(np.concatenate([ext, edit]), axis=0)  # (2K, n), a knot twice where unrefined
+        # a frame inside a pose's staggered span (between its editing and its
+        # extreme knot) of a part variable cannot take a knot: the knots keep their order
+        lo, hi = np.minimum(ext, edit), np.maximum(ext, edit)
+        inside = np.zeros(T, dtype=bool)
+        for k, i in zip(*np.nonzero(hi > lo), strict=True):
+            inside[int(lo[k, i]) : int(hi[k, i]) + 1] = True
         sites = np.zeros(T, dtype=bool)
         for m in local_maxima(P):
             if gate[m]:
                 sites[max(m - reach, 1) : min(m + reach, T - 2) + 1] = True
         grid = np.arange(0, T, stride)
-        grid = grid[sites[grid]]
+        grid = grid[sites[grid] & ~inside[grid]]
         taken: list[int] = []
         n = len(sel)
         while len(grid):
@@ -217,7 +227,6 @@ def find_partial(
             best = int(np.argmax(np.where(ok, old - new, -np.inf)))
             f = int(grid[best])
             taken.append(f)
+            found.append((float(old[best] - new[best]), part, f))
             knots = np.sort(np.concatenate([knots, np.full((1, n), float(f))]), axis=0)
-        if taken:
-            out[part] = np.array(sorted(taken), dtype=int)
-    return out
+    return [(part, f) for _, part, f in sorted(found, key=lambda g: -g[0])]
