@@ -322,6 +322,7 @@ def cull(
     interval: Span | None = None,
     select: Sequence[int] | None = None,
     add_time: float | Sequence[float] = (),
+    part: str | None = None,
     by: str = "error",
     ignore_contacts: bool = False,
 ) -> Document:
@@ -339,6 +340,12 @@ def cull(
         Keep these pose indices.
     add_time : float or list of float
         Add an unrefined pose at each of these times, seconds.
+    part : str, optional
+        With ``add_time``: add *partial poses* that own only this body part's
+        variables (``"@left-arm"``, ``"@right-arm"``, ``"@left-leg"``,
+        ``"@right-leg"``, ``"@spine"``, ``"@head"``; BVH only); the other
+        variables keep their knots exactly.  Partial poses count, rank and
+        can be selected like the others.
     by : {"error", "paper"}
         ``"error"``: the N poses whose spline layer fits best; ``"paper"``:
         the paper's priority.
@@ -353,7 +360,13 @@ def cull(
     12
     >>> st.cull(doc, keep=4, add_time=1.5).n_poses
     5
+    >>> arm = st.cull(doc, add_time=[0.55, 1.0], part="@left-arm")
+    >>> [p for p in arm.pose_part if p]
+    ['@left-arm', '@left-arm']
+    >>> bool((st.bake(arm).channels == st.bake(doc).channels).all())
+    True
     """
+    from .model.document import canonical_part
     from .ops.cull import add_pose, base_motion, choose, keep_poses
 
     doc = _document(doc)
@@ -368,6 +381,11 @@ def cull(
     chosen = None if select is None else [int(k) for k in select]
     if chosen is not None and not chosen:
         raise UsageError(f"{arg('select')} names no pose")
+    if part is not None:
+        part = canonical_part(part)
+        if not times:
+            raise UsageError(f"{arg('part')} says what the poses of {arg('add_time')} own: give {arg('add_time')}")
+        doc.part_mask(part)  # BVH, and a part this skeleton has: refused before any work
     if choosing:
         motion = base_motion(doc)  # ranking and refitting both read it: evaluated once
         mask = choose(
@@ -382,7 +400,7 @@ def cull(
         doc = keep_poses(doc, mask, motion)
         del motion
     for t in times:
-        doc = add_pose(doc, t)
+        doc = add_pose(doc, t, part)
     return doc
 
 
@@ -670,7 +688,8 @@ def add_layer(doc: Document, *, keep: str | int | None = None, times: Sequence[f
     doc : Document
     keep : int or str, optional
         The layer's poses are N (or P%) of the current poses, as
-        :func:`cull` ranks them.
+        :func:`cull` ranks them (a partial pose gives a partial layer pose,
+        with offsets in its part only).
     times : list of float, optional
         Or the layer's poses are at these times, seconds.
 
@@ -692,7 +711,9 @@ def add_layer(doc: Document, *, keep: str | int | None = None, times: Sequence[f
         raise UsageError(f"give the layer's poses: {arg('keep')} or {arg('times')}")
     if keep is not None:
         check_keep(keep)
-        return ops.add_layer(doc, doc.pose_t[choose(doc, keep=str(keep))])
+        mask = choose(doc, keep=str(keep))
+        parts = tuple(p for p, m in zip(doc.pose_part, mask, strict=True) if m)
+        return ops.add_layer(doc, doc.pose_t[mask], parts)
     values = [_number(t, "times") for t in times]
     if not values:
         raise UsageError(f"{arg('times')}: give at least one time")

@@ -33,6 +33,7 @@ def _cull(p: dict) -> tuple[str, dict]:
         "interval": time_range(p["interval"], "--interval"),
         "select": int_list(p["select"], "--select"),
         "add_time": [finite(t, "--add-time") for t in p["add_times"]],
+        "part": p["part"],
         "by": p["by"],
         "ignore_contacts": p["ignore_contacts"],
     }

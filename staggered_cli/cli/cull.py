@@ -21,6 +21,12 @@ from .options import force_option, format_option, input_argument, output_option
     "--add-time", "add_times", metavar="T", multiple=True, help="Add an unrefined pose at T seconds (repeatable)."
 )
 @click.option(
+    "--part",
+    metavar="@PART",
+    help="With --add-time: add partial poses that own only this body part (@left-arm, @right-arm, @left-leg, "
+    "@right-leg, @spine, @head; BVH).",
+)
+@click.option(
     "--by",
     type=click.Choice(["error", "paper"]),
     default="error",
@@ -35,15 +41,17 @@ from .options import force_option, format_option, input_argument, output_option
 @output_option
 @force_option
 @format_option
-def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, output, force, fmt):
+def cull(input_path, keep, interval, select, add_times, part, by, ignore_contacts, output, force, fmt):
     """Keep a subset of the poses of document FILE (first and last always).
 
     --interval and --select keep exactly those poses; --keep then keeps
-    exactly N of them.  The displacement maps are refitted so that the baked
-    motion is unchanged.
+    exactly N of them.  --add-time adds poses (with --part, partial poses
+    that own one body part).  The displacement maps are refitted so that the
+    baked motion is unchanged.
     """
     from ..api import check_keep
     from ..api import cull as op
+    from ..model.document import canonical_part
 
     check_output(output, force)
     times = [finite(t, "--add-time") for t in add_times]
@@ -54,7 +62,13 @@ def cull(input_path, keep, interval, select, add_times, by, ignore_contacts, out
     # batch checks its steps so, once, before any file)
     if keep is not None:
         check_keep(keep)
+    if part is not None:
+        if not times:
+            raise click.UsageError("--part says what the poses of --add-time own: give --add-time")
+        canonical_part(part)
     span, chosen = time_range(interval, "--interval"), int_list(select, "--select")
     doc = read_document(input_path)
-    doc = op(doc, keep=keep, interval=span, select=chosen, add_time=times, by=by, ignore_contacts=ignore_contacts)
+    doc = op(
+        doc, keep=keep, interval=span, select=chosen, add_time=times, part=part, by=by, ignore_contacts=ignore_contacts
+    )
     write_document(doc, output, fmt, force)

@@ -53,7 +53,11 @@ def format_table(summary: dict[str, Any]) -> str:
             lines.extend(f"{'':{width}}    {_layer_cell(n, v['poses'])}" for n, v in enumerate(value))
         elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
             lines.append(f"{k.ljust(width)}  {len(value)}")
-            lines.extend(f"{'':{width}}    {_cell(v)}" for v in value)
+            # a whole-body pose's part (null) is not worth a column of dashes
+            lines.extend(
+                f"{'':{width}}    {_cell({kk: vv for kk, vv in v.items() if kk != 'part' or vv is not None})}"
+                for v in value
+            )
         else:
             lines.append(f"{k.ljust(width)}  {_cell(value)}{units.get(k, '')}")
     return "\n".join(lines)

@@ -16,16 +16,17 @@ import re
 import numpy as np
 
 from ..contacts.constraint import Constraint
-from ..errors import DataError
-from ..model.document import MAX_LAYERS, Document, tree_has_loop, variable_layout
+from ..errors import DataError, StaggeredError
+from ..model.document import MAX_LAYERS, Document, part_of_targets, tree_has_loop, variable_layout
 from ..model.kinds import ROTATION, TRANSLATION
 from ..model.knots import Knots, Layer, Track
 from ..motion import BvhMotion, MarkerMotion, frame_time_problem, rate_problem
 from ..skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
 from .container import FORMAT_NAME, release_mapped
 
-#: The schema's version (what the manifest and arrays mean): 2 has layers.
-DOCUMENT_VERSION = 2
+#: The schema's version (what the manifest and arrays mean): 2 has layers,
+#: 3 partial poses (``pose_parts``, ``layer_pose_parts``).
+DOCUMENT_VERSION = 3
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +79,10 @@ def _layer_arrays(layer: Layer) -> dict[str, np.ndarray]:
 def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
     """The stored form of a document: a JSON-able manifest and numeric arrays.
 
-    Version 2: the base layer's poses are ``pose_t`` and ``priority``, layer
+    Version 3 (2 with the poses' parts): the base layer's poses are
+    ``pose_t`` and ``priority``, the manifest's ``pose_parts`` (null or a
+    body part such as ``"@left-arm"``, one per pose) says what each owns and
+    ``layer_pose_parts`` the same for each layer above the base, layer
     ``lay >= 1`` has its poses in ``layer{lay}.pose_t``, and track ``n``'s layer
     ``lay`` is stored as ``track{n}.layer{lay}.{knot_ptr,knot_t,...}``.
     """
@@ -103,6 +107,8 @@ def to_parts(doc: Document) -> tuple[dict, dict[str, np.ndarray]]:
         "tracks": tracks,
         "constraints": [_constraint_entry(c) for c in doc.constraints],
         "parameters": doc.parameters,
+        "pose_parts": list(doc.pose_part),
+        "layer_pose_parts": [list(p) for p in doc.layer_pose_part],
     }
     src = doc.source
     if isinstance(src, BvhMotion):
@@ -157,8 +163,14 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         version <= DOCUMENT_VERSION,
         f"document version {version} is newer than this staggered reads ({DOCUMENT_VERSION}); upgrade staggered",
     )
+    if version < DOCUMENT_VERSION:
+        log.info(
+            "document format version %d: converted to version %d (%s) on reading",
+            version,
+            DOCUMENT_VERSION,
+            "one layer, every pose whole-body" if version == 1 else "every pose whole-body",
+        )
     if version == 1:
-        log.info("document format version 1: converted to version 2 (one layer) on reading")
         arrays = _from_version_1(arrays)
         n_layers = 1
     else:
@@ -318,9 +330,43 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         f"pose times must run from the first frame to the last (0 to {duration:.4f} s)",
     )
     layer_pose_t = tuple(_checked_layer_poses(arrays, lay, duration, need, arr) for lay in range(1, n_layers))
+    layout = variable_layout(source)
+    if version >= 3:
+        pose_part = _checked_parts(manifest.get("pose_parts"), "pose_parts", K, need)
+        lay_parts = manifest.get("layer_pose_parts")
+        need(
+            isinstance(lay_parts, list) and len(lay_parts) == n_layers - 1,
+            f"layer_pose_parts must be a list of {n_layers - 1} lists",
+        )
+        layer_pose_part = tuple(
+            _checked_parts(p, f"layer_pose_parts[{n}]", len(t), need)
+            for n, (p, t) in enumerate(zip(lay_parts, layer_pose_t, strict=True))
+        )
+    else:
+        pose_part = (None,) * K
+        layer_pose_part = tuple((None,) * len(t) for t in layer_pose_t)
+    all_targets = np.concatenate([t for _, _, t in layout]) if layout else np.zeros(0, dtype=int)
+    part_masks: dict[str, np.ndarray] = {}
+    for part in {p for p in pose_part + tuple(q for qs in layer_pose_part for q in qs) if p is not None}:
+        try:
+            part_masks[part] = part_of_targets(source, all_targets, part)
+        except StaggeredError as exc:
+            need(False, f"pose part {part}: {exc.message}")
+
+    def owns_of(parts: tuple) -> list[np.ndarray]:
+        full = np.ones((len(parts), len(all_targets)), dtype=bool)
+        for k, p in enumerate(parts):
+            if p is not None:
+                full[k] = part_masks[p]
+        out, col = [], 0
+        for _, names, _ in layout:
+            out.append(full[:, col : col + len(names)])
+            col += len(names)
+        return out
+
+    owns_by_layer = [owns_of(pose_part)] + [owns_of(p) for p in layer_pose_part]
     tracks = []
     need(isinstance(track_info, list), "tracks must be a list")
-    layout = variable_layout(source)
     need(len(track_info) == len(layout), f"{len(track_info)} tracks for the source's {len(layout)}")
     for n, info in enumerate(track_info):
         try:
@@ -336,7 +382,17 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
             f"track {n} does not hold the source's {want_kind} variables (kind, names or targets differ)",
         )
         layers = tuple(
-            _checked_layer(n, lay, tkind, tnames, arrays, pose_t if lay == 0 else layer_pose_t[lay - 1], need, arr)
+            _checked_layer(
+                n,
+                lay,
+                tkind,
+                tnames,
+                arrays,
+                pose_t if lay == 0 else layer_pose_t[lay - 1],
+                need,
+                arr,
+                owns_by_layer[lay][n],
+            )
             for lay in range(n_layers)
         )
         tracks.append(Track(tkind, tnames, targets, layers))
@@ -386,7 +442,23 @@ def from_parts(manifest: dict, arrays: dict[str, np.ndarray]) -> Document:
         constraints=constraints,
         signals=signals,
         parameters=parameters if isinstance(parameters, dict) else {},
+        pose_part=pose_part,
+        layer_pose_part=layer_pose_part,
     )
+
+
+def _checked_parts(parts, what: str, K: int, need) -> tuple[str | None, ...]:
+    """A manifest's list of pose parts: K entries, each null or a body part
+    (``"@left-arm"``), the first and last null (they pin the clip's ends)."""
+    from ..names import PARTS
+
+    need(isinstance(parts, list) and len(parts) == K, f"{what} must be a list of {K} entries (one per pose)")
+    need(
+        all(p is None or (isinstance(p, str) and p.startswith("@") and p[1:] in PARTS) for p in parts),
+        f"{what} holds something that is neither null nor a body part ({', '.join('@' + p for p in PARTS)})",
+    )
+    need(K < 1 or (parts[0] is None and parts[-1] is None), f"{what}: the first and last pose must be whole-body")
+    return tuple(parts)
 
 
 def _rows_all(a: np.ndarray, test) -> bool:
@@ -493,10 +565,11 @@ def _checked_layer_poses(arrays, lay: int, duration: float, need, arr) -> np.nda
     return pose_t
 
 
-def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
-    """Layer ``lay`` of track ``n``, checked against its poses ``pose_t``: every
-    variable has one extreme knot per pose, in pose order; the base layer's
-    editing knots sit at their pose times, and a layer above it has none."""
+def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr, owns) -> Layer:
+    """Layer ``lay`` of track ``n``, checked against its poses ``pose_t`` and
+    what they own (``owns`` (K, V)): every variable has one extreme knot per
+    pose that owns it, in pose order; the base layer's editing knots sit at
+    their pose times, and a layer above it has none."""
     from ..model.knots import check_knot_order
 
     K = len(pose_t)
@@ -566,14 +639,19 @@ def _checked_layer(n, lay, kind, names, arrays, pose_t, need, arr) -> Layer:
         check_knot_order(knot_ptr, knot_t, names)
     except Exception as exc:  # KnotOrderError is a usage error when editing, a data error when read
         raise DataError(f"{p}{exc}") from None
-    # every variable has one extreme knot per pose, in pose order, and its
-    # editing knots sit at their pose's time (else refinements are undefined)
+    # every variable has one extreme knot per pose that owns it, in pose
+    # order, and its editing knots sit at their pose's time (else
+    # refinements are undefined)
     var = np.repeat(np.arange(V), np.diff(knot_ptr))
     ext = ~knot_editing.astype(bool)
+    own_var, own_pose = np.nonzero(np.asarray(owns, dtype=bool).T)
     need(
-        np.array_equal(var[ext], np.repeat(np.arange(V), K))
-        and np.array_equal(knot_pose[ext], np.tile(np.arange(K), V)),
-        f"{p}knots do not give every variable one extreme knot per pose",
+        np.array_equal(var[ext], own_var) and np.array_equal(knot_pose[ext], own_pose),
+        f"{p}knots do not give every variable one extreme knot per pose that owns it",
+    )
+    need(
+        bool(np.all(np.asarray(owns, dtype=bool)[knot_pose, var])),
+        f"{p}knots belong to poses that do not own their variable",
     )
     need(
         bool(np.all(np.abs(knot_t[~ext] - pose_t[knot_pose[~ext]]) < 1e-6)),

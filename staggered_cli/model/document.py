@@ -45,6 +45,14 @@ class Document:
     layer_pose_t : the pose times of each layer above the base, bottom up
         (each runs from the first frame to the last); the base layer's are
         ``pose_t``.
+    pose_part : (K,) what each base-layer pose owns: None for a whole-body
+        pose (knots in every variable), or a body part (``'@left-arm'``,
+        see :data:`staggered_cli.names.PARTS`) for a *partial pose*, which
+        has knots only in that part's variables (:meth:`part_mask`); the
+        other variables pass through it.  Empty (the default): every pose is
+        whole-body.  The first and last pose are always whole-body.
+    layer_pose_part : the same for each layer above the base (parallel to
+        ``layer_pose_t``; empty: all whole-body).
     constraints : contact constraints, by joint or marker name.
     signals : arrays kept for pictures (``'P'`` (T,), ``'p'`` (T, V)).
     parameters : what produced the document (extract options), JSON-able.
@@ -62,6 +70,24 @@ class Document:
     layer_pose_t: tuple[np.ndarray, ...] = ()
     signals: dict = field(default_factory=dict)
     parameters: dict = field(default_factory=dict)
+    pose_part: tuple[str | None, ...] = ()
+    layer_pose_part: tuple[tuple[str | None, ...], ...] = ()
+
+    def __post_init__(self) -> None:
+        # empty means all whole-body; otherwise one entry per pose (a
+        # ``replace`` that changes the poses must give the parts too: see
+        # :func:`with_poses`)
+        K = len(self.pose_t)
+        part = tuple(self.pose_part) or (None,) * K
+        if len(part) != K:
+            raise ValueError(f"pose_part has {len(part)} entries for {K} poses")
+        object.__setattr__(self, "pose_part", part)
+        layers = tuple(self.layer_pose_part) or tuple((None,) * len(t) for t in self.layer_pose_t)
+        if len(layers) != len(self.layer_pose_t) or any(
+            len(p) != len(t) for p, t in zip(layers, self.layer_pose_t, strict=True)
+        ):
+            raise ValueError("layer_pose_part does not match layer_pose_t")
+        object.__setattr__(self, "layer_pose_part", tuple(tuple(p) for p in layers))
 
     # -- facts --
     @property
@@ -92,6 +118,55 @@ class Document:
                 f"{arg('layer')} must be from 0 to {self.n_layers - 1} (the document has {self.n_layers}), got {layer}"
             )
         return self.pose_t if layer == 0 else self.layer_pose_t[layer - 1]
+
+    def parts_of(self, layer: int) -> tuple[str | None, ...]:
+        """What each pose of ``layer`` owns (0: ``pose_part``; see :attr:`pose_part`)."""
+        self.poses_of(layer)  # the range check
+        return self.pose_part if layer == 0 else self.layer_pose_part[layer - 1]
+
+    @property
+    def has_partial_poses(self) -> bool:
+        """Whether some pose of some layer is a partial pose."""
+        return any(p is not None for p in self.pose_part) or any(
+            p is not None for parts in self.layer_pose_part for p in parts
+        )
+
+    def part_mask(self, part: str | None) -> np.ndarray:
+        """(V,) bool mask of the control variables (all tracks, in
+        :attr:`variable_names` order) that body part ``part`` owns; all of
+        them for None.  See :func:`part_variables`."""
+        V = sum(tr.n_vars for tr in self.tracks)
+        if part is None:
+            return np.ones(V, dtype=bool)
+        return part_variables(self, part)
+
+    def owns(self, layer: int = 0) -> np.ndarray:
+        """(K, V) bool: which variables each pose of ``layer`` has knots in
+        (a row of True for a whole-body pose, its part's for a partial one)."""
+        parts = self.parts_of(layer)
+        V = sum(tr.n_vars for tr in self.tracks)
+        out = np.ones((len(parts), V), dtype=bool)
+        masks: dict[str, np.ndarray] = {}
+        for k, p in enumerate(parts):
+            if p is not None:
+                if p not in masks:
+                    masks[p] = self.part_mask(p)
+                out[k] = masks[p]
+        return out
+
+    def track_owns(self, layer: int = 0) -> list[np.ndarray]:
+        """:meth:`owns` split per track: a (K, V_track) mask each."""
+        owns = self.owns(layer)
+        out, col = [], 0
+        for tr in self.tracks:
+            out.append(owns[:, col : col + tr.n_vars])
+            col += tr.n_vars
+        return out
+
+    def pose_label(self, k: int, layer: int = 0) -> str:
+        """``'pose 5'``, or ``'pose 5 (@left-arm)'`` for a partial pose."""
+        part = self.parts_of(layer)[k]
+        return f"pose {k}" if part is None else f"pose {k} ({part})"
 
     @property
     def frame_times(self) -> np.ndarray:
@@ -140,15 +215,88 @@ class Document:
         raise UsageError(f"unknown variable {name!r}")
 
     def refinements(self) -> np.ndarray:
-        """(K, V) refinements in seconds over all variables."""
+        """(K, V) refinements in seconds over all variables (0 where a
+        partial pose has no knot)."""
         cols = []
         for tr in self.tracks:
             ext_t, _, _ = pose_arrays(tr, self.n_poses)
-            cols.append(ext_t - self.pose_t[:, None])
+            cols.append(np.nan_to_num(ext_t - self.pose_t[:, None], nan=0.0))
         return np.concatenate(cols, axis=1) if cols else np.zeros((self.n_poses, 0))
 
     def with_tracks(self, tracks: tuple[Track, ...], **changes) -> Document:
         return replace(self, tracks=tuple(tracks), **changes)
+
+
+def canonical_part(part: str) -> str:
+    """``'@left-arm'`` for ``'@Left-Arm'`` or ``'left-arm'``; UsageError
+    (naming ``part``) for anything that is not one of the body parts."""
+    from ..names import PARTS
+
+    name = str(part).strip().lower().lstrip("@")
+    if name not in PARTS:
+        raise UsageError(f"{arg('part')} must be one of {', '.join('@' + p for p in PARTS)}, got {part!r}")
+    return "@" + name
+
+
+def part_variables(doc: Document, part: str) -> np.ndarray:
+    """(V,) bool mask of the control variables body part ``part`` owns (see :func:`part_of_targets`)."""
+    targets = np.concatenate([tr.targets for tr in doc.tracks]) if doc.tracks else np.zeros(0, dtype=int)
+    return part_of_targets(doc.source, targets, part)
+
+
+def part_of_targets(source: BvhMotion | MarkerMotion, targets: np.ndarray, part: str) -> np.ndarray:
+    """(V,) bool mask of the variables driving joints ``targets`` (V,) of
+    ``source`` that body part ``part`` owns.
+
+    The part's joints are the subtree of its root joint
+    (:func:`staggered_cli.names.body_part`: ``@left-arm`` from the left
+    clavicle or shoulder down to the fingers) without the subtrees of the
+    other parts' roots that lie inside it (``@spine`` stops below the neck
+    and the clavicles); a part owns its joints' rotations and, where they
+    have position channels, translations.  The root joint belongs to no part:
+    its translation and rotation (the figure's place and heading) change
+    only at whole-body poses.  BVH only (a C3D's markers have no body
+    parts): UsageError otherwise, and where the skeleton has no such part
+    or the part has no variables.
+    """
+    from ..names import PARTS, body_part
+
+    part = canonical_part(part)
+    src = source
+    if not isinstance(src, BvhMotion):
+        raise UsageError(f"partial poses ({part}) need a BVH document: a C3D's markers have no body parts")
+    sk = src.skeleton
+    root = body_part(part[1:], sk.names, sk.parents)
+    joints = np.zeros(sk.n_joints, dtype=bool)
+    joints[sk.subtree(root)] = True
+    for other in PARTS:
+        if "@" + other == part:
+            continue
+        try:
+            j = body_part(other, sk.names, sk.parents)
+        except UsageError:
+            continue
+        if j != root and joints[j]:
+            joints[sk.subtree(j)] = False
+    joints[sk.parents < 0] = False
+    mask = joints[np.asarray(targets, dtype=int)]
+    if not mask.any():
+        raise UsageError(f"body part {part} has no variables in this skeleton")
+    return mask
+
+
+def with_poses(
+    doc: Document,
+    pose_t: np.ndarray,
+    priority: np.ndarray,
+    pose_part: tuple[str | None, ...] | None = None,
+    **changes,
+) -> Document:
+    """``doc`` with new base-layer poses: their times, priorities and parts
+    (None: all whole-body), and any other ``changes``; every place that
+    changes the poses goes through here, so the three stay of one length."""
+    part = (None,) * len(pose_t) if pose_part is None else tuple(pose_part)
+    return replace(doc, pose_t=pose_t, priority=priority, pose_part=part, **changes)
 
 
 def time_decimals(frame_time: float) -> int:
@@ -261,6 +409,7 @@ def document_summary(doc: Document) -> dict:
                 "time": round(float(doc.pose_t[k]), 9),
                 "frame": source_frame(doc, k),
                 "priority": round(pr, 9) if np.isfinite(pr) else None,
+                "part": doc.pose_part[k],
                 "refinements": r,
             }
         )
@@ -275,7 +424,12 @@ def document_summary(doc: Document) -> dict:
         "variables": len(names),
         "poses": poses,
         "layers": [
-            {"poses": [{"index": k, "time": round(float(t), 9)} for k, t in enumerate(doc.poses_of(n))]}
+            {
+                "poses": [
+                    {"index": k, "time": round(float(t), 9), "part": doc.parts_of(n)[k]}
+                    for k, t in enumerate(doc.poses_of(n))
+                ]
+            }
             for n in range(doc.n_layers)
         ],
         "constraints": [

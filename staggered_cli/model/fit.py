@@ -57,6 +57,7 @@ def knots_from_poses(
     value: np.ndarray,
     edit_value: np.ndarray,
     names: tuple[str, ...] | None = None,
+    owns: np.ndarray | None = None,
 ) -> Knots:
     """The knots of pose-level arrays.
 
@@ -66,22 +67,28 @@ def knots_from_poses(
     refine : (K, V) refinements, seconds.
     value : (K, V, D) extreme values.
     edit_value : (K, V, D) editing-knot values (used where ``refine != 0``).
+    owns : (K, V) bool, which variables each pose has knots in (a partial
+        pose owns one body part's, see :meth:`.document.Document.owns`);
+        None: every pose owns every variable.  Where it is False the other
+        arrays are not read.
     """
     K, V = refine.shape
     names = names or tuple(f"variable {i}" for i in range(V))
     d = value.shape[-1]
+    own = np.ones((K, V), dtype=bool) if owns is None else np.asarray(owns, dtype=bool)
     # every variable's knots at once: its extreme knots (pose order), then
     # its editing knots (pose order), sorted by time within the variable,
     # stably (np.lexsort is), as one variable at a time would
-    ext_t = (pose_t[:, None] + refine).T.ravel()  # variable-major
-    ed_var, ed_k = np.nonzero((refine != 0.0).T)  # variable-major, poses increasing
-    var = np.concatenate([np.repeat(np.arange(V), K), ed_var])
+    ex_var, ex_k = np.nonzero(own.T)  # variable-major, poses increasing
+    ext_t = pose_t[ex_k] + refine[ex_k, ex_var]
+    ed_var, ed_k = np.nonzero(((refine != 0.0) & own).T)  # variable-major, poses increasing
+    var = np.concatenate([ex_var, ed_var])
     t = np.concatenate([ext_t, pose_t[ed_k]])
     order = np.lexsort((t, var))
     var, t = var[order], t[order]
-    p = np.concatenate([np.tile(np.arange(K), V), ed_k])[order]
-    e = np.concatenate([np.zeros(K * V, dtype=bool), np.ones(len(ed_k), dtype=bool)])[order]
-    v = np.concatenate([value.transpose(1, 0, 2).reshape(K * V, d), edit_value[ed_k, ed_var]])[order]
+    p = np.concatenate([ex_k, ed_k])[order]
+    e = np.concatenate([np.zeros(len(ex_k), dtype=bool), np.ones(len(ed_k), dtype=bool)])[order]
+    v = np.concatenate([value[ex_k, ex_var].reshape(-1, d), edit_value[ed_k, ed_var].reshape(-1, d)])[order]
     crossed = np.flatnonzero((np.diff(p) < 0) & (np.diff(var) == 0))
     if len(crossed):
         from ..errors import KnotOrderError

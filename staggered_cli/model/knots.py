@@ -259,23 +259,26 @@ def empty_track(kind: str, names: tuple[str, ...] = (), targets: np.ndarray | No
     return Track(kind, tuple(names), targets, (empty_layer(kind, len(names)),))
 
 
-def offset_layer(kind: str, n_vars: int, pose_t: np.ndarray) -> Layer:
+def offset_layer(kind: str, n_vars: int, pose_t: np.ndarray, owns: np.ndarray | None = None) -> Layer:
     """A layer of identity offsets at the poses ``pose_t`` (K,), for every
-    variable: it leaves the motion as it is.  Its tangents are flat (the
+    variable (``owns`` (K, V): only where a pose owns the variable, see
+    partial poses): it leaves the motion as it is.  Its tangents are flat (the
     inner controls sit on the knots), so an offset set at one pose rises from
     the identity at the previous pose and falls back at the next with zero
     velocity at all three: smooth, and confined between the neighbours."""
     ops = kinds.ops_for(kind)
     K = len(pose_t)
-    ptr = np.arange(n_vars + 1) * K
+    own = np.ones((K, n_vars), dtype=bool) if owns is None else np.asarray(owns, dtype=bool)
+    var, pose = np.nonzero(own.T)  # variable-major, poses increasing
+    ptr = np.concatenate([[0], np.cumsum(own.sum(axis=0))]).astype(int)
     knots = Knots(
         ptr,
-        np.tile(np.asarray(pose_t, dtype=float), n_vars),
-        ops.identity((n_vars * K,)),
-        np.tile(np.arange(K), n_vars),
-        np.zeros(n_vars * K, dtype=bool),
+        np.asarray(pose_t, dtype=float)[pose],
+        ops.identity((len(var),)),
+        pose,
+        np.zeros(len(var), dtype=bool),
     )
-    n_seg = n_vars * max(K - 1, 0)
+    n_seg = int(ptr[-1]) - n_vars if K else 0
     d = DIM[kind]
     return Layer(
         knots,

@@ -7,11 +7,13 @@ change (SPEC invariant 2).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from .. import quat
 from ..errors import UsageError, arg, warn
-from ..model.document import Document, check_pose_index, pose_near
+from ..model.document import MIN_POSE_GAP_FRAMES, Document, check_pose_index, pose_near, with_poses
 from ..model.evaluate import evaluate, evaluate_at
 from ..model.fit import knots_from_poses
 from ..model.kinds import ROTATION
@@ -148,7 +150,9 @@ def document_proxy(doc: Document, motion: tuple[np.ndarray, ...] | None = None) 
         if tr.kind == ROTATION:
             dense = quat.unroll(dense, axis=0)
         variables.append((tr.kind, tr.names, tr.targets, dense))
-        ext.append(pose_arrays(tr, doc.n_poses)[0])
+        ext_t = pose_arrays(tr, doc.n_poses)[0]
+        # a partial pose has no knot outside its part: there it spans nothing
+        ext.append(np.where(np.isnan(ext_t), doc.pose_t[:, None], ext_t))
     proxy = placement.proxy_from_dense(variables, placement.variable_weights(doc.source, variables))
     ext_f = (np.concatenate(ext, axis=1) if ext else np.zeros((doc.n_poses, 0))) / doc.frame_time
     return proxy, ext_f[:, proxy.cols]
@@ -231,59 +235,120 @@ def keep_poses(doc: Document, mask: np.ndarray, motion: tuple[np.ndarray, ...] |
         knots = tr.knots.subset(mask[tr.knot_pose], new_index[tr.knot_pose])
         tracks.append(restructure(tr, knots, frame_t=doc.frame_times, dense=dense))
     signals = dict(doc.signals)
+    parts = tuple(p for p, m in zip(doc.pose_part, mask, strict=True) if m)
     return reprioritized(
-        doc.with_tracks(tuple(tracks), pose_t=doc.pose_t[mask], priority=doc.priority[mask], signals=signals)
+        with_poses(doc, doc.pose_t[mask], doc.priority[mask], parts, tracks=tuple(tracks), signals=signals)
     )
 
 
-def add_pose(doc: Document, time: float) -> Document:
-    """A new unrefined pose at ``time`` seconds (its knots take the values the
-    motion has there), motion unchanged.
+def add_pose(doc: Document, time: float, part: str | None = None) -> Document:
+    """A new unrefined pose at ``time`` seconds (see :func:`add_poses`)."""
+    return add_poses(doc, [time], part)
 
-    Where ``time`` falls inside another pose's staggered span (between its
-    editing knot and its extreme knot) for some variable, that refinement is
+
+def add_poses(
+    doc: Document, times, part: str | None | Sequence[str | None] = None
+) -> Document:
+    """New unrefined poses at ``times`` seconds (their knots take the values
+    the motion has there), motion unchanged (SPEC invariant 2).
+
+    ``part``: None adds whole-body poses; a body part (``'@left-arm'``, see
+    :func:`staggered_cli.model.document.part_variables`) adds *partial
+    poses*, with knots (an extreme knot at the pose time, no refinement) in
+    that part's variables only: the other variables keep their knots, values
+    and segments to the bit.  A sequence gives each time its own part.
+
+    A time within half a frame of an existing pose (or of another of
+    ``times``), or outside the clip, is refused (UsageError).  Where a time
+    falls inside another pose's staggered span (between its editing knot and
+    its extreme knot) for a variable the new pose owns, that refinement is
     collapsed to zero (the knot returns to its pose time, with the value the
-    motion has there), so the poses' knots stay in order; a warning names them.
+    motion has there), so the poses' knots stay in order; a warning names
+    them.  Refinements of the new poses are set afterwards with
+    :func:`staggered_cli.ops.timing.change_refinements` (or
+    :func:`staggered_cli.ops.timing.set_refinements`).
     """
+    from ..model.document import canonical_part, with_poses
+
+    times = [float(t) for t in np.atleast_1d(np.asarray(times, dtype=float))]
+    if isinstance(part, str) or part is None:
+        parts = [part] * len(times)
+    else:
+        parts = list(part)
+        if len(parts) != len(times):
+            raise UsageError(f"{arg('part')} gives {len(parts)} parts for {len(times)} times")
+    parts = [None if p is None else canonical_part(p) for p in parts]
+    if not times:
+        return doc
     half = 0.5 * doc.frame_time  # times as info prints them (4 decimals) must be accepted
-    if not np.isfinite(time) or not -half <= time <= doc.duration + half:
-        raise UsageError(f"{arg('add_time')} must lie within the clip (0 to {doc.seconds(doc.duration)}), got {time:g}")
-    time = float(min(max(time, 0.0), doc.duration))
-    near = pose_near(doc, time)
-    if near is not None:
-        if abs(doc.pose_t[near] - time) < 1e-9:
-            raise UsageError(f"there is already a pose at {doc.seconds(time)} (pose {near})")
+    clipped = []
+    for time in times:
+        if not np.isfinite(time) or not -half <= time <= doc.duration + half:
+            raise UsageError(
+                f"{arg('add_time')} must lie within the clip (0 to {doc.seconds(doc.duration)}), got {time:g}"
+            )
+        time = float(min(max(time, 0.0), doc.duration))
+        near = pose_near(doc, time)
+        if near is not None:
+            if abs(doc.pose_t[near] - time) < 1e-9:
+                raise UsageError(f"there is already a pose at {doc.seconds(time)} (pose {near})")
+            raise UsageError(
+                f"{arg('add_time')} {time:g}: pose {near} is at {doc.seconds(doc.pose_t[near])}, less than half a "
+                "frame away (poses keep at least half a frame apart)"
+            )
+        clipped.append(time)
+    order = np.argsort(clipped, kind="stable")
+    new_t = np.asarray(clipped)[order]
+    new_parts = [parts[i] for i in order]
+    if len(new_t) > 1 and np.min(np.diff(new_t)) < MIN_POSE_GAP_FRAMES * doc.frame_time:
+        j = int(np.argmin(np.diff(new_t)))
         raise UsageError(
-            f"{arg('add_time')} {time:g}: pose {near} is at {doc.seconds(doc.pose_t[near])}, less than half a frame "
-            "away (poses keep at least half a frame apart)"
+            f"{arg('add_time')} {new_t[j]:g} and {new_t[j + 1]:g} are less than half a frame apart "
+            "(poses keep at least half a frame apart)"
         )
-    k_new = int(np.searchsorted(doc.pose_t, time))
-    pose_t = np.insert(doc.pose_t, k_new, time)
-    tracks = []
-    for tr in doc.tracks:
+    # where each new pose goes among the old: np.insert's positions
+    at = np.searchsorted(doc.pose_t, new_t)
+    pose_t = np.insert(doc.pose_t, at, new_t)
+    new_index = np.searchsorted(pose_t, new_t)
+    new_owns = np.stack([doc.part_mask(p) for p in new_parts])  # (N, V)
+    old_owns = doc.track_owns()
+    tracks, col = [], 0
+    for tr, owns in zip(doc.tracks, old_owns, strict=True):
+        mine = new_owns[:, col : col + tr.n_vars]
+        col += tr.n_vars
         ext_t, value, edit = pose_arrays(tr, doc.n_poses)
-        refine = ext_t - doc.pose_t[:, None]
-        lo = np.minimum(doc.pose_t[:, None], ext_t)
-        hi = np.maximum(doc.pose_t[:, None], ext_t)
-        conflict = (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi)
+        refine = np.where(owns, ext_t - doc.pose_t[:, None], 0.0)
+        ext = np.where(owns, ext_t, doc.pose_t[:, None])
+        lo = np.minimum(doc.pose_t[:, None], ext)
+        hi = np.maximum(doc.pose_t[:, None], ext)
+        conflict = np.zeros(refine.shape, dtype=bool)
+        for time, m in zip(new_t, mine, strict=True):
+            conflict |= owns & (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi) & m[None, :]
         for k in np.flatnonzero(conflict.any(axis=1)):
             names = ", ".join(tr.names[i] for i in np.flatnonzero(conflict[k]))
             warn(
                 f"{arg('add_time')} %s: pose %d's refinements of %s collapse to 0 to make room",
-                doc.seconds(time),
+                ", ".join(doc.seconds(t) for t in new_t),
                 k,
                 names,
             )
         refine = np.where(conflict, 0.0, refine)
         value = np.where(conflict[..., None], edit, value)
-        here = evaluate_at(tr, np.arange(tr.n_vars), np.full(tr.n_vars, time), depth=1)
+        V = tr.n_vars
+        here = evaluate_at(tr, np.tile(np.arange(V), len(new_t)), np.repeat(new_t, V), depth=1).reshape(
+            len(new_t), V, tr.dim
+        )
         knots = knots_from_poses(
             pose_t,
-            np.insert(refine, k_new, 0.0, axis=0),
-            np.insert(value, k_new, here, axis=0),
-            np.insert(edit, k_new, here, axis=0),
+            np.insert(refine, at, 0.0, axis=0),
+            np.insert(value, at, here, axis=0),
+            np.insert(edit, at, here, axis=0),
             tr.names,
+            owns=np.insert(owns, at, mine, axis=0),
         )
         tracks.append(restructure(tr, knots, frame_t=doc.frame_times))
-    priority = np.insert(doc.priority, k_new, 0.0)
-    return reprioritized(doc.with_tracks(tuple(tracks), pose_t=pose_t, priority=priority))
+    priority = np.insert(doc.priority, at, 0.0)
+    pose_part = list(doc.pose_part)
+    for k, p in zip(new_index, new_parts, strict=True):
+        pose_part.insert(int(k), p)
+    return reprioritized(with_poses(doc, pose_t, priority, tuple(pose_part), tracks=tuple(tracks)))

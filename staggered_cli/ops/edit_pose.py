@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import quat
-from ..errors import DataError, UsageError, arg
+from ..errors import DataError, UsageError, arg, warn
 from ..model.document import Document, check_pose_index
 from ..model.evaluate import evaluate, evaluate_at
 from ..model.kinds import ROTATION, TRANSLATION, ops_for
@@ -30,11 +30,18 @@ MAX_EXAGGERATE = 100.0
 
 def pose_values(doc: Document, k: int, on: str) -> list[np.ndarray]:
     """Per track, the (V, D) values of pose ``k``: the true pose at ``t_k``
-    (``on='true'``) or the non-staggered pose of extreme values."""
+    (``on='true'``) or the non-staggered pose of extreme values.  Where a
+    partial pose has no knot (outside its part) both are the value the
+    spline layer passes through at ``t_k``."""
     out = []
-    for tr in doc.tracks:
+    for tr, owns in zip(doc.tracks, doc.track_owns(), strict=True):
         _, value, edit = pose_arrays(tr, doc.n_poses)
-        out.append(edit[k] if on == "true" else value[k])
+        vals = edit[k] if on == "true" else value[k]
+        free = np.flatnonzero(~owns[k])
+        if len(free):
+            vals = vals.copy()
+            vals[free] = evaluate_at(tr, free, np.full(len(free), float(doc.pose_t[k])), depth=1)
+        out.append(vals)
     return out
 
 
@@ -65,8 +72,10 @@ def _apply_delta(doc: Document, k: int, deltas: list[np.ndarray | None], on: str
         var = tr.knots.var
         mine = tr.knot_pose == k
         knot_v = tr.knot_v.copy()
-        knot_v[mine] = ops_for(tr.kind).oplus(tr.knot_v[mine], d[var[mine]])
-        knot_v = ops_for(tr.kind).normalize(knot_v)
+        # only the pose's own knots change (the others to the bit: a partial
+        # pose's edit leaves every other variable as it was)
+        ops = ops_for(tr.kind)
+        knot_v[mine] = ops.normalize(ops.oplus(tr.knot_v[mine], d[var[mine]]))
         tracks.append(tr.with_knot_values(knot_v))
     return doc.with_tracks(tuple(tracks))
 
@@ -208,15 +217,25 @@ def edit_pose(
 
     rotate = rotate or {}
     translate = translate or {}
+    part = doc.parts_of(layer)[k]
+    owned = _split(doc, doc.part_mask(part))  # per track: the variables pose k has knots in
+    if part is not None:
+        _check_in_part(doc, k, part, owned, rotate, translate)
+        if root:
+            warn(
+                f"{arg('root')}: %s owns only %s; the figure's place and heading change at whole-body poses",
+                doc.pose_label(k, layer),
+                part,
+            )
     if rotate or translate:
         doc = apply(doc, offsets(doc, rotate, translate))
     if exaggerate is not None:
         check_exaggerate(exaggerate)
         if root and doc.kind != "bvh":
             raise UsageError(f"{arg('root')} is for a BVH's root; a C3D document's markers have none")
-        r = _reference_pose(relative_to, k, len(times))
+        r = _reference_pose(relative_to, k, len(times), doc.parts_of(layer))
         cur = values_at(doc, k)
-        mask = exaggeration_mask(doc, joints, subtree, root)
+        mask = [m & o for m, o in zip(exaggeration_mask(doc, joints, subtree, root), owned, strict=True)]
         if doc.kind == "c3d":  # the average of a marker set is its own (a mean shape)
             cur, ref = _marker_shapes(doc, times, k, r, cur, None if r is None else values_at(doc, r), mask[0])
         else:
@@ -240,7 +259,7 @@ def edit_pose(
         doc = edited
     if values is not None:
         cur = values_at(doc, k)
-        mask = joint_mask(doc, joints, subtree)
+        mask = [m & o for m, o in zip(joint_mask(doc, joints, subtree), owned, strict=True)]
         if not root and doc.kind == "bvh":
             values = _keep_place(doc, cur, values)
         deltas = []
@@ -251,6 +270,27 @@ def edit_pose(
             deltas.append(d)
         doc = apply(doc, deltas)
     return doc
+
+
+def _split(doc: Document, mask: np.ndarray) -> list[np.ndarray]:
+    """A (V,) mask over all variables as one (V_track,) mask per track."""
+    out, col = [], 0
+    for tr in doc.tracks:
+        out.append(mask[col : col + tr.n_vars])
+        col += tr.n_vars
+    return out
+
+
+def _check_in_part(doc, k: int, part: str, owned: list[np.ndarray], rotate: dict, translate: dict) -> None:
+    """Refuse ``--rotate``/``--translate`` of a joint outside partial pose
+    ``k``'s part: the pose has no knot there to change."""
+    for name, kind in [(n, ROTATION) for n in rotate] + [(n, TRANSLATION) for n in translate]:
+        ti, i = _find(doc, name, kind)
+        if not owned[ti][i]:
+            raise UsageError(
+                f"pose {k} is a partial pose of {part}: {doc.tracks[ti].names[i]!r} is not in it "
+                "(edit a whole-body pose, or a partial pose of that part)"
+            )
 
 
 def check_exaggerate(w: float) -> None:
@@ -579,23 +619,34 @@ def _segments_kept(doc: Document, before: Document, fixed: np.ndarray, planted: 
 
 def reference_values(doc: Document, k: int, relative_to: str, on: str) -> list[np.ndarray]:
     """Per track (V, D) values of the reference pose for exaggeration."""
-    r = _reference_pose(relative_to, k, doc.n_poses)
+    r = _reference_pose(relative_to, k, doc.n_poses, doc.pose_part)
     return average_pose(doc) if r is None else pose_values(doc, r, on)
 
 
-def _reference_pose(relative_to: str, k: int, n_poses: int) -> int | None:
-    """The index of pose ``k``'s reference pose, or None for the average."""
+def _reference_pose(relative_to: str, k: int, n_poses: int, parts: tuple | None = None) -> int | None:
+    """The index of pose ``k``'s reference pose, or None for the average.
+
+    ``prev`` and ``next`` are the nearest poses as whole as pose ``k`` with
+    knots in its variables (``parts``, see
+    :attr:`~staggered_cli.model.document.Document.pose_part`): for a
+    whole-body pose the whole-body poses, for a partial pose those and the
+    partial poses of its part."""
     key = str(relative_to).strip().lower()
     if key == "average":
         return None
+    parts = (None,) * n_poses if parts is None else parts
+
+    def near(j: int) -> bool:
+        return parts[j] is None or parts[j] == parts[k]
+
     if key == "prev":
         if k == 0:
             raise UsageError("pose 0 has no previous pose to exaggerate against")
-        return k - 1
+        return next(j for j in range(k - 1, -1, -1) if near(j))
     if key == "next":
         if k == n_poses - 1:
             raise UsageError(f"pose {k} is the last; it has no next pose to exaggerate against")
-        return k + 1
+        return next(j for j in range(k + 1, n_poses) if near(j))
     try:
         r = int(key)
     except ValueError:

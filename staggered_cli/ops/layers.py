@@ -58,16 +58,34 @@ def layer_times(doc: Document, times: list[float]) -> np.ndarray:
     return t[keep]
 
 
-def add_layer(doc: Document, pose_t: np.ndarray) -> Document:
+def add_layer(doc: Document, pose_t: np.ndarray, parts: tuple[str | None, ...] | None = None) -> Document:
     """The document with a layer of identity offsets at ``pose_t`` on top:
-    the motion is unchanged."""
+    the motion is unchanged.  ``parts`` (one per pose, None: all whole-body)
+    makes some of the layer's poses partial: offsets only in their body
+    part's variables (e.g. the parts of the base poses a ``keep`` chose)."""
     pose_t = np.asarray(pose_t, dtype=float)
     if len(pose_t) < 2 or pose_t[0] != 0.0 or abs(pose_t[-1] - doc.duration) > 1e-9 or np.any(np.diff(pose_t) <= 0):
         raise ValueError("a layer's poses run from the first frame to the last, strictly increasing")
     if doc.n_layers >= MAX_LAYERS:
         raise UsageError(f"the document already has {doc.n_layers} layers (at most {MAX_LAYERS})")
-    tracks = tuple(tr.with_layer(len(tr.layers), offset_layer(tr.kind, tr.n_vars, pose_t)) for tr in doc.tracks)
-    return replace(doc, tracks=tracks, layer_pose_t=doc.layer_pose_t + (pose_t,))
+    parts = (None,) * len(pose_t) if parts is None else tuple(parts)
+    if len(parts) != len(pose_t) or parts[0] is not None or parts[-1] is not None:
+        raise ValueError("a layer's parts: one per pose, the first and last whole-body")
+    owns = np.ones((len(pose_t), len(doc.variable_names)), dtype=bool)
+    for k, p in enumerate(parts):
+        if p is not None:
+            owns[k] = doc.part_mask(p)
+    tracks, col = [], 0
+    for tr in doc.tracks:
+        mine = owns[:, col : col + tr.n_vars]
+        col += tr.n_vars
+        tracks.append(tr.with_layer(len(tr.layers), offset_layer(tr.kind, tr.n_vars, pose_t, mine)))
+    return replace(
+        doc,
+        tracks=tuple(tracks),
+        layer_pose_t=doc.layer_pose_t + (pose_t,),
+        layer_pose_part=doc.layer_pose_part + (parts,),
+    )
 
 
 def remove_layer(doc: Document, layer: int) -> Document:
@@ -84,7 +102,8 @@ def remove_layer(doc: Document, layer: int) -> Document:
         )
     tracks = tuple(tr.without_layer(layer) for tr in doc.tracks)
     poses = doc.layer_pose_t[: layer - 1] + doc.layer_pose_t[layer:]
-    return replace(doc, tracks=tracks, layer_pose_t=poses)
+    parts = doc.layer_pose_part[: layer - 1] + doc.layer_pose_part[layer:]
+    return replace(doc, tracks=tracks, layer_pose_t=poses, layer_pose_part=parts)
 
 
 def layer_rows(doc: Document) -> list[dict]:
@@ -142,7 +161,7 @@ def apply_offset(doc: Document, layer: int, k: int, deltas: list[np.ndarray | No
             continue
         ops = tr.ops
         lay = tr.layers[layer]
-        mine = np.flatnonzero(lay.knots.pose == k)  # one knot per variable, in variable order
+        mine = np.flatnonzero(lay.knots.pose == k)  # one knot per variable it owns, in variable order
         var = lay.knots.var[mine]
         above = stack_values(tr, t, layer + 1)
         change = ops.oplus(ops.oplus(above, d), ops.ominus(ops.identity((tr.n_vars,)), above))

@@ -18,6 +18,7 @@ import numpy as np
 from .. import quat
 from ..errors import DataError, UsageError, arg, warn
 from ..model.document import Document, require_bvh, variable_layout
+from ..model.evaluate import evaluate_at
 from ..model.fit import knots_from_poses
 from ..model.kinds import ROTATION, TRANSLATION, ops_for
 from ..model.knots import Layer, Track, pose_arrays
@@ -42,15 +43,21 @@ def _on(on: str) -> str:
 
 def pose_locals(doc: Document, on: str = "true") -> tuple[np.ndarray, np.ndarray]:
     """Local rotations (K, J, 4) and translations (K, J, 3) of every pose:
-    the true pose at t_k (``on='true'``) or the non-staggered pose."""
+    the true pose at t_k (``on='true'``) or the non-staggered pose.  A
+    partial pose holds the whole figure at its time: outside its part, the
+    values the spline layer passes through there."""
     src = require_bvh(doc, "export-poses")
     sk = src.skeleton
     K = doc.n_poses
     rot = quat.identity((K, sk.n_joints))
     tra = np.broadcast_to(sk.offsets, (K, sk.n_joints, 3)).copy()
-    for tr in doc.tracks:
+    for tr, owns in zip(doc.tracks, doc.track_owns(), strict=True):
         _, value, edit = pose_arrays(tr, K)
         vals = edit if _on(on) == "true" else value  # (K, V, D)
+        kk, ii = np.nonzero(~owns)
+        if len(kk):
+            vals = vals.copy()
+            vals[kk, ii] = evaluate_at(tr, ii, doc.pose_t[kk], depth=1)
         if tr.kind == ROTATION:
             rot[:, tr.targets] = vals
         else:
@@ -151,7 +158,9 @@ def apply_pose_file(
     then receive the change (the mutually constrained pair, as in
     :func:`~staggered_cli.ops.edit_pose.edit_pose`).  Other poses keep
     their knots bit for bit.  The whole pose comes from the file, the root's
-    translation included, within the ``joints``/``subtree`` mask.
+    translation included, within the ``joints``/``subtree`` mask; for a
+    partial pose only its part's variables (the others have no knot of it),
+    with a warning when the file changes others at its frame.
 
     Returns the document, the number of poses changed and the number of
     joints changed (over all poses, each joint counted once).
@@ -196,12 +205,14 @@ def apply_pose_file(
                 name,
             )
     tracks, touched = [], np.zeros((doc.n_poses, sk.n_joints), dtype=bool)
+    outside = np.zeros((doc.n_poses, sk.n_joints), dtype=bool)  # changes a partial pose has no knot for
     per_kind = {ROTATION: (rot_changed, doc_rot, file_rot), TRANSLATION: (tra_changed, doc_tra, file_tra)}
-    for tr, m in zip(doc.tracks, mask, strict=True):
+    for tr, m, owns in zip(doc.tracks, mask, doc.track_owns(), strict=True):
         t = tr.targets
         op = ops_for(tr.kind)
         changed, ours, theirs = per_kind[tr.kind]
-        change = changed[:, t] & m[None, :]
+        outside[:, t] |= changed[:, t] & m[None, :] & ~owns
+        change = changed[:, t] & m[None, :] & owns
         delta = op.ominus(theirs[:, t], ours[:, t])  # (K, V, D): v_new ⊖ v
         if not change.any():
             tracks.append(tr)
@@ -213,6 +224,20 @@ def apply_pose_file(
         d = delta[tr.knot_pose[hit], var[hit]]
         knot_v[hit] = op.normalize(op.oplus(tr.knot_v[hit], d))  # unit quaternions stay unit
         tracks.append(_with_knot_values(tr, knot_v))
+    if outside.any():
+        poses = np.flatnonzero(outside.any(axis=1))
+        k = int(poses[0])
+        warn(
+            "%d frame%s of the file change%s joints outside %s partial pose's part (frame %d: %s, outside %s): "
+            "left as they are (a partial pose owns only its part)",
+            len(poses),
+            "s" if len(poses) > 1 else "",
+            "" if len(poses) > 1 else "s",
+            "their" if len(poses) > 1 else "its",
+            k,
+            ", ".join(sk.names[j] for j in np.flatnonzero(outside[k])[:3]),
+            doc.pose_part[k],
+        )
     return doc.with_tracks(tuple(tracks)), int(touched.any(axis=1).sum()), int(touched.any(axis=0).sum())
 
 

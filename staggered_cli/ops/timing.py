@@ -90,9 +90,10 @@ def change_refinements(
     if not np.all(np.isfinite(delta)):
         raise UsageError("timing offsets must be finite")
     tracks, warps, col, far = [], {}, 0, []
-    for tr in doc.tracks:
-        # a variable that never moves has no timing: retiming it could only be refused
-        d = delta[:, col : col + tr.n_vars] * ~static_variables(tr)[None, :]
+    for tr, owns in zip(doc.tracks, doc.track_owns(), strict=True):
+        # a variable that never moves has no timing: retiming it could only be
+        # refused; a partial pose has no knot (no refinement) outside its part
+        d = delta[:, col : col + tr.n_vars] * ~static_variables(tr)[None, :] * owns
         col += tr.n_vars
         if not np.any(d != 0.0):
             tracks.append(tr)
@@ -101,13 +102,14 @@ def change_refinements(
         if tree:
             seen = np.all(np.isfinite(doc.source.points), axis=2)
             tr = marker_chain.recomposed(tr, marker_parents, doc.frame_times, to_offsets=True, seen=seen)
-        track, old_ext, new_ext = _retime_track(doc, tr, d, clamp)
+        track, old_ext, new_ext = _retime_track(doc, tr, d, clamp, owns)
         far += _far_knots(doc, tr, old_ext - doc.pose_t[:, None], new_ext - doc.pose_t[:, None])
         if tree:
             track = marker_chain.recomposed(track, marker_parents, doc.frame_times, to_offsets=False)
         tracks.append(track)
         for i in np.flatnonzero(np.any(old_ext != new_ext, axis=0)):
-            warps[(tr.kind, int(tr.targets[i]))] = (old_ext[:, i], new_ext[:, i])
+            own = owns[:, i]
+            warps[(tr.kind, int(tr.targets[i]))] = (old_ext[own, i], new_ext[own, i])
     if far:
         r, k, name = max(far, key=lambda x: (abs(x[0]), -x[1]))
         many = len(far) > 1
@@ -169,7 +171,9 @@ def _warp_constraints(doc: Document, warps: dict) -> tuple:
     return tuple(out)
 
 
-def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> tuple[Track, np.ndarray, np.ndarray]:
+def _retime_track(
+    doc: Document, tr: Track, delta: np.ndarray, clamp: bool, owns: np.ndarray | None = None
+) -> tuple[Track, np.ndarray, np.ndarray]:
     """New refinements ``r + delta`` for one track (see :func:`change_refinements`).
 
     The motion is first warped in time, per variable, by the piecewise-linear
@@ -180,60 +184,100 @@ def _retime_track(doc: Document, tr: Track, delta: np.ndarray, clamp: bool) -> t
     with the value the warped motion has there (paper Figure 6c) and the
     displacement maps are measured again from the warped motion.
 
-    Returns the track and the old and new extreme knot times (K, V).
+    ``owns`` (K, V): the variables each pose has knots in (partial poses;
+    None: all); a pose's refinements elsewhere are 0 and stay so.
+
+    Returns the track and the old and new extreme knot times (K, V) (the
+    pose time where a pose has no knot).
     """
     K = doc.n_poses
+    owns = np.ones((K, tr.n_vars), dtype=bool) if owns is None else np.asarray(owns, dtype=bool)
     ext_t, value, edit = pose_arrays(tr, K)
-    refine = ext_t - doc.pose_t[:, None]
-    new_refine = refine + delta
+    refine = np.where(owns, ext_t - doc.pose_t[:, None], 0.0)
+    new_refine = refine + np.where(owns, delta, 0.0)
     if clamp:
-        new_refine = _clamped(doc.pose_t, refine, new_refine, _MARGIN_FRAMES * doc.frame_time)
+        new_refine = _clamped(doc.pose_t, refine, new_refine, _MARGIN_FRAMES * doc.frame_time, owns)
     new_refine[np.abs(new_refine) < 1e-12] = 0.0
-    _check_final_order(doc, tr, new_refine)
+    _check_final_order(doc, tr, new_refine, owns)
     old_ext = doc.pose_t[:, None] + refine
     new_ext = doc.pose_t[:, None] + new_refine
     warped_t = tr.knot_t.copy()
     for i in range(tr.n_vars):
         sl = tr.knot_slice(i)
-        warped_t[sl] = warp(tr.knot_t[sl], old_ext[:, i], new_ext[:, i])
+        own = owns[:, i]
+        warped_t[sl] = warp(tr.knot_t[sl], old_ext[own, i], new_ext[own, i])
     warped = with_knot_times(tr, warped_t, frame_time=doc.frame_time)
     # editing knots are measured again where a variable's timing changed; the
     # others keep their values to the bit, so that their segments are not refitted
     moved = np.any(new_refine != refine, axis=0)
-    kk, ii = np.nonzero((new_refine != 0.0) & moved[None, :])
+    kk, ii = np.nonzero((new_refine != 0.0) & moved[None, :] & owns)
     edit = np.where((new_refine != 0.0)[..., None], edit, value)
     if len(kk):
         edit[kk, ii] = evaluate_at(warped, ii, doc.pose_t[kk], depth=1)
-    knots = knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names)
+    knots = knots_from_poses(doc.pose_t, new_refine, value, edit, tr.names, owns=owns)
     return restructure(warped, knots, frame_t=doc.frame_times), old_ext, new_ext
 
 
-def _check_final_order(doc: Document, tr: Track, refine: np.ndarray) -> None:
-    """Refuse refinements whose knots would cross (SPEC invariant 3)."""
+def _previous_owner(owns: np.ndarray) -> np.ndarray:
+    """(K, V) index of the last pose before ``k`` that owns variable ``i``
+    (-1 for none)."""
+    K = owns.shape[0]
+    idx = np.where(owns, np.arange(K)[:, None], -1)
+    last = np.maximum.accumulate(idx, axis=0)
+    return np.concatenate([np.full((1, owns.shape[1]), -1), last[:-1]], axis=0)
+
+
+def _check_final_order(doc: Document, tr: Track, refine: np.ndarray, owns: np.ndarray | None = None) -> None:
+    """Refuse refinements whose knots would cross (SPEC invariant 3): each
+    pose's knots against those of the previous pose with knots in the same
+    variable."""
     t = doc.pose_t[:, None]
     lo = np.minimum(t, t + refine)  # (K, V): first knot of each pose
     hi = np.maximum(t, t + refine)
-    bad = lo[1:] <= hi[:-1]
+    if owns is None or owns.all():
+        bad = lo[1:] <= hi[:-1]
+        prev = np.broadcast_to(np.arange(len(t) - 1)[:, None], bad.shape)
+    else:
+        before = _previous_owner(owns)[1:]
+        cols = np.broadcast_to(np.arange(refine.shape[1]), before.shape)
+        bad = owns[1:] & (before >= 0) & (lo[1:] <= hi[np.maximum(before, 0), cols])
+        prev = before
     if np.any(bad):
-        k, i = (int(x[0]) for x in np.nonzero(bad))
+        k1, i = (int(x[0]) for x in np.nonzero(bad))
+        k, k2 = int(prev[k1, i]), k1 + 1
         raise KnotOrderError(
-            f"the knots of {tr.names[i]!r} would cross between poses {k} and {k + 1} "
-            f"({doc.seconds(doc.pose_t[k])} and {doc.seconds(doc.pose_t[k + 1])}): the timing change is too large "
+            f"the knots of {tr.names[i]!r} would cross between poses {k} and {k2} "
+            f"({doc.seconds(doc.pose_t[k])} and {doc.seconds(doc.pose_t[k2])}): the timing change is too large "
             f"(use {arg('clamp')} to stop short)"
         )
 
 
-def _clamped(pose_t: np.ndarray, current: np.ndarray, wanted: np.ndarray, margin: float) -> np.ndarray:
+def _clamped(
+    pose_t: np.ndarray, current: np.ndarray, wanted: np.ndarray, margin: float, owns: np.ndarray | None = None
+) -> np.ndarray:
     """Refinements as close to ``wanted`` as the knot order allows.
 
     Left to right, each pose's knots stay ``margin`` seconds clear of the
     previous pose's (as already clamped) and of the next pose's as they are
     now, so no pose moves that was not asked to, and the current refinement
     is always allowed.  An extreme knot may pass its own pose time: the
-    editing knot simply ends on its other side.
+    editing knot simply ends on its other side.  With ``owns`` (K, V) (partial
+    poses) a pose's neighbours in a variable are the nearest poses with knots
+    in it, and a pose without knots there keeps its 0.
     """
     out = current.copy()
     K = len(pose_t)
+    if owns is not None and not owns.all():
+        t = pose_t[:, None]
+        lo_now = np.where(owns, np.minimum(t, t + current), np.inf)
+        next_lo = np.minimum.accumulate(lo_now[::-1], axis=0)[::-1]  # the nearest owner's at or after k
+        prev_hi = np.maximum(pose_t[0], pose_t[0] + out[0])  # the first pose owns every variable
+        for k in range(1, K - 1):
+            lo = np.minimum(prev_hi + margin - pose_t[k], current[k])
+            hi = np.maximum(next_lo[k + 1] - margin - pose_t[k], current[k])
+            out[k] = np.where(owns[k], np.clip(wanted[k], lo, hi), current[k])
+            prev_hi = np.where(owns[k], np.maximum(pose_t[k], pose_t[k] + out[k]), prev_hi)
+        return out
     for k in range(1, K - 1):
         prev_hi = np.maximum(pose_t[k - 1], pose_t[k - 1] + out[k - 1])
         next_lo = np.minimum(pose_t[k + 1], pose_t[k + 1] + current[k + 1])

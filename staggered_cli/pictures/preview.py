@@ -43,15 +43,26 @@ def _parse_at(at: str, count: int | None, n_poses: int | None) -> tuple[str, int
 
 
 def _times(
-    stick: _Stick, pose_t: np.ndarray | None, at: str, count: int | None, *, most: int | None, default: int | None
+    stick: _Stick,
+    pose_t: np.ndarray | None,
+    at: str,
+    count: int | None,
+    *,
+    most: int | None,
+    default: int | None,
+    parts: tuple | None = None,
 ) -> tuple[np.ndarray, list[str]]:
-    """Times (seconds) to show and their labels."""
+    """Times (seconds) to show and their labels (``parts``: the poses' body
+    parts, a partial pose labelled ``pose 5 (@left-arm)``)."""
     T = len(stick.points)
     if at == "poses" and pose_t is not None:
         k = np.arange(len(pose_t))
         if most is not None and len(k) > most:
             k = np.unique(np.rint(np.linspace(0, len(k) - 1, most)).astype(int))
-        return pose_t[k], [f"pose {i}\n{pose_t[i]:.2f} s" for i in k]
+        part = [None] * len(pose_t) if parts is None or len(parts) != len(pose_t) else parts
+        return pose_t[k], [
+            f"pose {i}{'' if part[i] is None else f' ({part[i]})'}\n{pose_t[i]:.2f} s" for i in k
+        ]
     n = count if count is not None else default
     if n is None:  # every frame at about GIF_FPS, real time
         step = max(1, round(1.0 / (GIF_FPS * stick.frame_time)), math.ceil(T / MAX_GIF_FRAMES))
@@ -196,7 +207,10 @@ def preview_figure(
     sticks = _subjects(subject, compare, name, compare_name)
     pose_t = _poses_of(sticks)
     at, count = _parse_at(at, count, None if pose_t is None else len(pose_t))
-    times, labels = _times(sticks[0], pose_t, at, count, most=MAX_PANELS, default=DEFAULT_PREVIEW_FRAMES)
+    parts = next((getattr(d, "pose_part", None) for d in (subject, compare) if hasattr(d, "pose_part")), None)
+    times, labels = _times(
+        sticks[0], pose_t, at, count, most=MAX_PANELS, default=DEFAULT_PREVIEW_FRAMES, parts=parts
+    )
     view = view_axes(sticks[0].points)
     n = len(times)
     panel = min(11.6 / n, 2.4) - 0.1  # inches per panel, less the gaps

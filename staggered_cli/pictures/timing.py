@@ -1,7 +1,8 @@
 """``timing``: a dope sheet: poses as columns at ``t_k``, variables as rows,
 each extreme knot drawn at its refined time ``t_k + r[k, i]`` so stagger
 and succession show as slanted columns; editing knots as open diamonds;
-contacts as bars in their rows."""
+contacts as bars in their rows; a partial pose as a dashed column with
+square knots on its part's rows only."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ if TYPE_CHECKING:
 
 #: Extreme knots before, after and on their pose's time.
 _EARLY, _LATE, _ON_POSE = "tab:blue", "tab:red", "0.45"
+#: The line of a partial pose (one body part's poses, see Document.pose_part).
+_PARTIAL = "tab:purple"
 
 
 def timing_figure(
@@ -36,7 +39,9 @@ def timing_figure(
     knot sits at its refined time ``t_k + r[k, i]``, joined to its pose line
     and coloured by the sign of the refinement (blue: before the pose, red:
     after, grey: on it); editing knots are open diamonds on the pose line.
-    Contacts are green bars in their joint's or marker's row.  Without
+    Contacts are green bars in their joint's or marker's row.  A partial
+    pose (one that owns one body part) is a dashed purple line whose knots,
+    squares, are on its part's rows only.  Without
     ``time``, a document of more than :data:`MAX_TIMING_POSES` poses shows
     its first ones (the title says which span).
     """
@@ -66,12 +71,16 @@ def timing_figure(
     # so that a pose just outside it has its line and number with its knots
     margin = 2 * doc.frame_time
     in_win = np.flatnonzero((pose_t >= lo - margin - 1e-9) & (pose_t <= hi + margin + 1e-9))
-    ax.vlines(pose_t[in_win], -0.5, len(labels) - 0.5, colors="0.75", lw=0.7, zorder=1)
+    partial = np.array([p is not None for p in doc.pose_part], dtype=bool)
+    whole_win, part_win = in_win[~partial[in_win]], in_win[partial[in_win]]
+    ax.vlines(pose_t[whole_win], -0.5, len(labels) - 0.5, colors="0.75", lw=0.7, zorder=1)
+    if len(part_win):  # a partial pose: a dashed line, its knots only on its part's rows
+        ax.vlines(pose_t[part_win], -0.5, len(labels) - 0.5, colors=_PARTIAL, lw=0.7, linestyles="--", zorder=1)
     for c, spans in contacts.items():
         if c in row_of:
             ax.broken_barh(spans, (row_of[c] - 0.42, 0.84), facecolors=_CONTACT, alpha=0.28, zorder=1, lw=0)
 
-    xs, ys, cs, segs, seg_c, ex, ey = [], [], [], [], [], [], []
+    xs, ys, cs, ps, segs, seg_c, ex, ey = [], [], [], [], [], [], [], []
     for r, v in enumerate(rows):
         tr = doc.tracks[v.track]
         sl = tr.knot_slice(v.local)
@@ -83,6 +92,7 @@ def timing_figure(
         xs.append(te)
         ys.append(np.full(len(te), r))
         cs.append(color)
+        ps.append(partial[kp[ext]])
         moved = r_ != 0
         segs += [((a, r), (b, r)) for a, b in zip(tk[moved], te[moved], strict=True)]
         seg_c += list(color[moved])
@@ -94,8 +104,10 @@ def timing_figure(
         ax.add_collection(LineCollection(segs, colors=seg_c, lw=1.4, zorder=2))
     if rows:
         scale = _crowding(doc, lo, hi)
-        x, y, c = np.concatenate(xs), np.concatenate(ys), np.concatenate(cs)
-        ax.scatter(x, y, s=16 * scale, c=list(c), zorder=3, lw=0)
+        x, y, c, p = np.concatenate(xs), np.concatenate(ys), np.concatenate(cs), np.concatenate(ps)
+        ax.scatter(x[~p], y[~p], s=16 * scale, c=list(c[~p]), zorder=3, lw=0)
+        if p.any():  # a partial pose's extreme knots: squares
+            ax.scatter(x[p], y[p], s=20 * scale, c=list(c[p]), marker="s", zorder=3, lw=0)
         ax.scatter(
             np.concatenate(ex),
             np.concatenate(ey),
@@ -123,5 +135,19 @@ def timing_figure(
         Line2D([], [], color="black", marker="D", markerfacecolor="white", lw=0, label="editing knot (at t_k)"),
         Patch(facecolor=_CONTACT, alpha=0.4, label="contact"),
     ]
-    fig.legend(handles=handles, loc="outside lower center", ncols=6, fontsize=8, frameon=False)
+    if len(part_win):
+        handles.insert(
+            1,
+            Line2D(
+                [],
+                [],
+                color=_PARTIAL,
+                ls="--",
+                marker="s",
+                markerfacecolor=_ON_POSE,
+                lw=1,
+                label="partial pose (knots in its part's rows)",
+            ),
+        )
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 6), fontsize=8, frameon=False)
     return fig

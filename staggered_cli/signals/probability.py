@@ -68,14 +68,37 @@ def pose_probability(
     return tent_filter(mean, filter_width, ev.rate)
 
 
-def pose_priority(P: np.ndarray, frames: np.ndarray, pose_t: np.ndarray) -> np.ndarray:
+def pose_priority(
+    P: np.ndarray, frames: np.ndarray, pose_t: np.ndarray, parts: tuple | None = None
+) -> np.ndarray:
     """The paper's pose priorities ``P(t_k)(t_{k+1} - t_{k-1})`` (K,) (4.1):
     ``P`` (T,) the pose probability, ``frames`` (K,) the poses' frames,
     ``pose_t`` (K,) their times; infinite for the first and last pose, which
-    culling always keeps."""
-    priority = np.full(len(pose_t), np.inf)
-    if len(pose_t) > 2:
+    culling always keeps.
+
+    ``parts`` (K,): each pose's body part, None for a whole-body pose (see
+    :attr:`staggered_cli.model.document.Document.pose_part`).  A pose's
+    neighbours ``k-1`` and ``k+1`` are then the nearest poses that share its
+    variables and are as whole: a whole-body pose's are whole-body poses, a
+    partial pose's whole-body poses or partial poses of its own part.
+    Adding partial poses thus leaves the whole-body poses' priorities as
+    they were."""
+    K = len(pose_t)
+    priority = np.full(K, np.inf)
+    if K <= 2:
+        return priority
+    if parts is None or all(p is None for p in parts):
         priority[1:-1] = P[frames[1:-1]] * (pose_t[2:] - pose_t[:-2])
+        return priority
+    for k in range(1, K - 1):
+        mine = parts[k]
+
+        def near(j: int, mine=mine) -> bool:
+            return parts[j] is None or parts[j] == mine
+
+        prev = next(j for j in range(k - 1, -1, -1) if near(j))
+        after = next(j for j in range(k + 1, K) if near(j))
+        priority[k] = P[frames[k]] * (pose_t[after] - pose_t[prev])
     return priority
 
 
@@ -87,4 +110,4 @@ def reprioritized(doc: Document) -> Document:
     if P is None or len(P) != doc.n_frames or doc.n_poses < 3:
         return doc
     frames = np.clip(np.rint(doc.pose_t / doc.frame_time).astype(int), 0, doc.n_frames - 1)
-    return replace(doc, priority=pose_priority(np.asarray(P, dtype=float), frames, doc.pose_t))
+    return replace(doc, priority=pose_priority(np.asarray(P, dtype=float), frames, doc.pose_t, doc.pose_part))

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from staggered_cli.io.schema import DOCUMENT_VERSION
+
 
 @dataclass(frozen=True)
 class Case:
@@ -901,7 +903,7 @@ def doc_crossing_knots(b: DocBase, rng: random.Random, fmt: str) -> Case:
 def doc_version(b: DocBase, rng: random.Random, fmt: str) -> Case:
     manifest, arrays = _parts(b)
     where = rng.choice(["manifest", "envelope"])
-    value = rng.choice([0, 3, 99, -1, "1", 1.0, None, True, [1]])
+    value = rng.choice([0, DOCUMENT_VERSION + 1, 99, -1, "1", 1.0, None, True, [1]])
     if where == "manifest":
         manifest["version"] = value
         data = _encode(manifest, arrays, fmt)
