@@ -35,6 +35,7 @@ sys.path.insert(0, str(ROOT))
 from staggered_cli.io.bvh import read_bvh  # noqa: E402
 from staggered_cli.ops import partial as partial_ops  # noqa: E402
 from staggered_cli.ops.extract import extract  # noqa: E402
+from staggered_cli.signals import partial as partial_signals  # noqa: E402
 from tests import part_events, partial_knots  # noqa: E402
 from tests.conftest import MOCAP  # noqa: E402
 from tests.events import TPOSE_FILES  # noqa: E402
@@ -60,7 +61,7 @@ def arm_knots(doc, hand: str) -> np.ndarray:
     sk = doc.source.skeleton
     j = sk.names.index(hand)
     chain = [j]
-    roots = partial_ops.part_roots(doc.source)
+    roots = partial_signals.part_roots(doc.source)
     while chain[-1] not in roots.values() and sk.parents[chain[-1]] >= 0:
         chain.append(int(sk.parents[chain[-1]]))
     tr = [t for t in doc.tracks if t.kind == "rotation"][0]
@@ -68,10 +69,10 @@ def arm_knots(doc, hand: str) -> np.ndarray:
 
 
 def hand_part(doc, hand: str) -> str:
-    """The body part (``left-arm`` or ``right-arm``) a hand joint is in."""
+    """The body part (``@left-arm`` or ``@right-arm``) a hand joint is in."""
     sk = doc.source.skeleton
     j = sk.names.index(hand)
-    for part, root in partial_ops.part_roots(doc.source).items():
+    for part, root in partial_signals.part_roots(doc.source).items():
         if part.endswith("-arm") and j in sk.subtree(root):
             return part
     return ""
@@ -103,7 +104,7 @@ def measure(name: str, motion) -> dict:
     found = partial_ops.partial_times(with_parts)
     hit, missed = coverage(motion, name, whole, found)
     worst = max((most_in_window(t) for t in found.values()), default=0)
-    ratio, knots = partial_knots.equal_knots_ratio(whole, found)
+    ratio, knots = partial_knots.equal_knots_ratio(whole, with_parts)
     return {
         "file": name,
         "K": whole.n_poses,

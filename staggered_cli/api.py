@@ -251,9 +251,9 @@ def extract(
     min_spacing : float
         Fewest seconds between two poses.
     partial : bool
-        After the whole-body poses, find each body part's own poses where
-        its features fall between them (issue 37, BVH only; recorded in the
-        document's ``parameters['partial_poses']``, body part -> times).
+        After the whole-body poses, add each body part's own partial poses
+        (``doc.pose_part``) where its features fall between them and earn
+        their knots (BVH only).
 
     Returns
     -------

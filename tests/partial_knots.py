@@ -1,11 +1,11 @@
 """The spline layer with partial poses, at the same total number of knots (issue 37).
 
-A partial pose of a body part is a knot of each of the part's variables
-(and none of the others').  Each variable's spline is fitted to its own
-knots alone, so the spline layer of a document with partial poses is, part
-by part, that of the whole-body document with the part's partial poses
-added as poses (:func:`staggered_cli.ops.cull.add_pose`), read for the
-part's variables only.  That is how it is measured here.
+The whole-body extract of a clip is compared with its ``--partial``
+extract: the latter is the former with partial poses added (the whole-body
+poses are the same), so at equal knots it is the whole-body document culled
+by error by as many poses as the partial poses' knots make up, with the
+partial poses added (:func:`staggered_cli.ops.cull.add_poses`), against the
+whole-body document.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import numpy as np
 from staggered_cli.errors import StaggeredWarning
 from staggered_cli.model.sampling import local_pose
 from staggered_cli.ops import cull
-from staggered_cli.signals import partial as partial_signals
 from staggered_cli.skeleton import forward_kinematics
 
 
@@ -26,67 +25,48 @@ def knot_count(doc) -> int:
     return int(sum(len(t.knots.t) for t in doc.tracks))
 
 
-def with_partial(doc, found: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
-    """The spline layer's local rotations (T, J, 4) and translations (T, J, 3)
-    of ``doc`` with the partial poses ``found`` (body part -> times), and its
-    total number of knots."""
-    rot, tr = local_pose(doc, doc.frame_times, "splines")
-    rot, tr = rot.copy(), tr.copy()
-    n = knot_count(doc)
-    joints = partial_signals.part_joints(doc.source)
-    for part, times in found.items():
-        if len(times) == 0:
-            continue
-        d = doc
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", StaggeredWarning)
-            for t in times:
-                d = cull.add_pose(d, float(t))
-        r2, t2 = local_pose(d, doc.frame_times, "splines")
-        js = joints[part]
-        rot[:, js] = r2[:, js]
-        tr[:, js] = t2[:, js]
-        for a, b in zip(doc.tracks, d.tracks, strict=True):
-            for name in a.names:
-                if a.targets[a.index(name)] in js:
-                    i = a.index(name)
-                    n += (b.knots.ptr[i + 1] - b.knots.ptr[i]) - (a.knots.ptr[i + 1] - a.knots.ptr[i])
-    return rot, tr, int(n)
-
-
-def spline_error(doc, rot: np.ndarray, tr: np.ndarray) -> float:
-    """Mean world joint position error of a spline layer against the source, % of figure height."""
+def spline_error(doc) -> float:
+    """Mean world joint position error of the spline layer alone against the
+    source (``bake --layers splines``), % of figure height."""
     src = doc.source
+    rot, tr = local_pose(doc, doc.frame_times, "splines")
     pos = forward_kinematics(src.skeleton, rot, tr)[1]
     return float(np.mean(np.linalg.norm(pos - src.world_positions(), axis=-1)) / src.figure_height() * 100.0)
 
 
-def equal_knots_ratio(whole, found: dict[str, np.ndarray]) -> tuple[float, tuple[int, int]]:
-    """The spline layer's error with the partial poses ``found`` over that of
-    the whole-body document ``whole`` alone, at the same total number of
-    knots: ``whole`` is culled (by error) by the fewest poses that bring the
-    knots of its poses left plus the partial poses to at most its own, and
-    the error is read at exactly its knot count, linearly between that cull
-    and the one with a pose more (a pose is some 30 knots, a partial pose
-    4 to 8); and the two knot counts (without, with at that cull)."""
-    rot, tr = local_pose(whole, whole.frame_times, "splines")
-    base = spline_error(whole, rot, tr)
+def partial_poses(doc) -> tuple[list[float], list[str]]:
+    """The times and parts of ``doc``'s partial poses."""
+    keep = [(float(t), p) for t, p in zip(doc.pose_t, doc.pose_part, strict=True) if p is not None]
+    return [t for t, _ in keep], [p for _, p in keep]
+
+
+def equal_knots_ratio(whole, with_parts) -> tuple[float, tuple[int, int]]:
+    """The spline layer's error with the partial poses of ``with_parts`` over
+    that of the whole-body document ``whole`` alone, at the same total number
+    of knots, and the two knot counts (without, with at the cull that
+    reaches them).
+
+    ``whole`` is culled (by error) by the fewest poses that bring the knots
+    of its poses left plus the partial poses to at most its own; the error
+    is read at exactly its knot count, linearly between that cull and the
+    one with a pose more (a pose is 20 to 50 knots, a partial pose 3 to 8).
+    """
+    base = spline_error(whole)
     n_whole = knot_count(whole)
-    if not any(len(t) for t in found.values()):
+    times, parts = partial_poses(with_parts)
+    if not times:
         return 1.0, (n_whole, n_whole)
     K = whole.n_poses
-    above = (n_whole, base)  # (knots, error) of the last trial with more knots than ``whole``
+    above = (n_whole, base)
     for keep in range(K, 1, -1):
         d = whole if keep == K else cull.keep_poses(whole, cull.choose(whole, keep=str(keep)))
-        # partial poses where a pose left stands are not needed there
-        left = {
-            p: np.array([t for t in ts if np.min(np.abs(d.pose_t - t)) > 0.5 * d.frame_time]) for p, ts in found.items()
-        }
-        rot, tr, n = with_partial(d, left)
-        err = spline_error(whole, rot, tr)
+        left = [i for i, t in enumerate(times) if np.min(np.abs(d.pose_t - t)) > 0.5 * d.frame_time]
+        with warnings.catch_warnings():  # a culled pose's refinement in the way collapses: so be it
+            warnings.simplefilter("ignore", StaggeredWarning)
+            d = cull.add_poses(d, [times[i] for i in left], [parts[i] for i in left])
+        n, err = knot_count(d), spline_error(d)
         if n <= n_whole:
-            # the error at exactly ``n_whole`` knots, linear between this trial and the one above
-            (n1, e1) = above
+            n1, e1 = above
             e = err if n1 <= n else err + (e1 - err) * (n_whole - n) / (n1 - n)
             return e / base, (n_whole, n)
         above = (n, err)

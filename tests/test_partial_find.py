@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+import staggered_cli as st
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import write_bvh
@@ -53,37 +54,49 @@ def test_a_spliced_clip_has_the_body_of_one_capture_and_the_arms_of_the_other():
 def test_parts_partition_the_limbs_and_the_spine_keeps_its_own_joints():
     m = dev_motion("cmu_02_01_walk.bvh")
     joints = partial_signals.part_joints(m)
-    assert set(joints) == {"left-arm", "right-arm", "left-leg", "right-leg", "spine", "head"}
+    assert set(joints) == {"@left-arm", "@right-arm", "@left-leg", "@right-leg", "@spine", "@head"}
     names = {p: {m.skeleton.names[j] for j in js} for p, js in joints.items()}
-    assert names["left-arm"] == {
-        "LeftShoulder",
-        "LeftArm",
-        "LeftForeArm",
-        "LeftHand",
-        "LeftFingerBase",
-        "LeftHandIndex1",
-        "LThumb",
-    }
-    assert names["spine"] == {"LowerBack", "Spine", "Spine1"}
-    assert names["head"] == {"Neck", "Neck1", "Head"}
+    arm = {"LeftShoulder", "LeftArm", "LeftForeArm", "LeftHand", "LeftFingerBase", "LeftHandIndex1", "LThumb"}
+    assert names["@left-arm"] == arm
+    assert names["@spine"] == {"LowerBack", "Spine", "Spine1"}
+    assert names["@head"] == {"Neck", "Neck1", "Head"}
     every = np.concatenate(list(joints.values()))
     assert len(every) == len(set(every.tolist()))  # no joint in two parts
+    assert m.skeleton.names.index("Hips") not in every  # the root changes at whole-body poses only
 
 
 @pytest.mark.parametrize("name", list(SPLICES))
 def test_partial_poses_leave_the_whole_body_poses_and_the_motion_as_they_were(name):
     whole, parts = _docs(name)
-    np.testing.assert_array_equal(whole.pose_t, parts.pose_t)
-    assert "partial_poses" not in whole.parameters
+    is_whole = np.array([p is None for p in parts.pose_part])
+    np.testing.assert_array_equal(parts.pose_t[is_whole], whole.pose_t)
+    assert not whole.has_partial_poses
     found = partial_ops.partial_times(parts)
     assert found, "the dance's arms on another body give partial poses"
-    T = _clip(name).n_frames
+    m = _clip(name)
     for part, times in found.items():
-        assert part in partial_signals.part_roots(_clip(name))
-        assert np.all((times > 0) & (times < (T - 1) * _clip(name).frame_time))
-        # at most one per part in any 0.3 s, and min_spacing from every whole-body pose
+        assert part in partial_signals.part_roots(m)
+        assert np.all((times > 0) & (times < m.n_frames * m.frame_time))
+        # at most one per part in any 0.3 s, and farther than min_spacing from every whole-body pose
         assert np.all(np.diff(times) >= WINDOW - 1e-9), (part, times)
         assert np.min(np.abs(times[:, None] - whole.pose_t[None, :])) > 0.1 - 1e-9
+    np.testing.assert_allclose(st.bake(parts).channels, m.channels, atol=1e-9)
+    # cull --keep N is exact with partial poses too, and keeps the motion
+    for n in (parts.n_poses - 2, whole.n_poses, 5):
+        d = st.cull(parts, keep=str(n))
+        assert d.n_poses == n
+        np.testing.assert_allclose(st.bake(d).channels, m.channels, atol=1e-9)
+
+
+def _arm_knots(doc, hand: str) -> np.ndarray:
+    """The knots of an arm's joints from its root down to the hand (no fingers)."""
+    sk = doc.source.skeleton
+    chain = [sk.names.index(hand)]
+    roots = set(partial_signals.part_roots(doc.source).values())
+    while chain[-1] not in roots:
+        chain.append(int(sk.parents[chain[-1]]))
+    rot = doc.tracks[-1]
+    return np.concatenate([rot.knots.t[rot.knots.of(rot.index(sk.names[j]))] for j in chain])
 
 
 def test_the_arms_get_poses_at_their_own_features_the_whole_body_poses_miss():
@@ -95,44 +108,32 @@ def test_the_arms_get_poses_at_their_own_features_the_whole_body_poses_miss():
         peaks = part_events.feature_peaks(sk.names, sk.parents, m.world_positions(), m.frame_time, m.figure_height())
         found = partial_ops.partial_times(parts)
         for hand, t in peaks.items():
-            part = "left-arm" if hand.startswith("Left") else "right-arm"
-            root = partial_signals.part_roots(m)[part]
-            chain = [
-                j
-                for j in sk.subtree(root)
-                if sk.names[j]
-                in (
-                    "LeftShoulder",
-                    "LeftArm",
-                    "LeftForeArm",
-                    "LeftHand",
-                    "RightShoulder",
-                    "RightArm",
-                    "RightForeArm",
-                    "RightHand",
-                )
-            ]
-            rot = whole.tracks[-1]
-            knots = np.concatenate([rot.knots.t[rot.knots.of(rot.index(sk.names[j]))] for j in chain])
-            miss = part_events.missed(t, knots)
+            part = "@left-arm" if hand.startswith("Left") else "@right-arm"
+            miss = part_events.missed(t, _arm_knots(whole, hand))
             missed += len(miss)
             hit += int(part_events.hit(miss, found.get(part, np.zeros(0))).sum())
-    # measured 2 of 5 (issue 37 asks 80 %, not met: see the closing note); a finder
-    # that placed arm poses anywhere else would hit none
+    # measured 4 of 5 (issue 37: at least 80 %); arm poses anywhere else would hit none
     assert missed >= 4
-    assert hit >= 2, (hit, missed)
+    assert hit >= 0.8 * missed, (hit, missed)
 
 
-def test_at_equal_knots_the_spline_layer_is_no_worse_with_partial_poses():
+def test_at_equal_knots_the_spline_layer_is_better_with_partial_poses():
     ratios = []
     for name in SPLICES:
         whole, parts = _docs(name)
-        ratio, (n_whole, n_parts) = partial_knots.equal_knots_ratio(whole, partial_ops.partial_times(parts))
+        ratio, (n_whole, n_parts) = partial_knots.equal_knots_ratio(whole, parts)
         assert n_parts <= n_whole
         ratios.append(ratio)
-    # measured 0.994, 1.051, 0.949: geometric mean 0.997 (issue 37 asks 0.9, not met)
-    assert np.exp(np.mean(np.log(ratios))) <= 1.01, ratios
-    assert max(ratios) <= 1.06, ratios
+    # measured 0.982, 1.002, 0.926: geometric mean 0.970 (issue 37 asks 0.9: not met)
+    assert np.exp(np.mean(np.log(ratios))) <= 0.98, ratios
+    assert max(ratios) <= 1.01, ratios
+
+
+@pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu_05_06_modern_dance.bvh"])
+def test_at_equal_knots_a_dev_file_is_no_worse_with_partial_poses(name):
+    m = dev_motion(name)
+    ratio, _ = partial_knots.equal_knots_ratio(extract(m), extract(m, partial=True))
+    assert ratio <= 1.005, ratio  # measured 0.984, 1.002, 0.976
 
 
 def test_a_plain_walk_gains_few_partial_poses():

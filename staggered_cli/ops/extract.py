@@ -53,7 +53,6 @@ Significance gate
 from __future__ import annotations
 
 import bisect
-from dataclasses import replace
 
 import numpy as np
 
@@ -65,9 +64,9 @@ from ..model.kinds import ROTATION
 from ..model.variables import dense_variables, fits_by_column, from_motion, variable_layout
 from ..motion import BvhMotion, MarkerMotion, rate_problem
 from ..signals import partial as partial_poses
-from . import partial as partial_ops
 from ..signals import placement, probability, trails
 from ..signals.smoothing import DEFAULT_FILTER_WIDTH, DEFAULT_SMOOTHING, tent_filter
+from . import partial as partial_ops
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -522,9 +521,9 @@ def extract(
     contact_tolerance : contact tolerance, a fraction of the figure height.
     significance : amount of motion (figure heights per second) a candidate
         pose needs; 0 keeps every local maximum of ``P``.
-    partial : after the whole-body poses, each body part's own poses
-        (:mod:`staggered_cli.signals.partial`), recorded in ``parameters``
-        (``'partial_poses'``: body part -> times); BVH only (``UsageError``).
+    partial : after the whole-body poses, each body part's own partial
+        poses where they earn their knots (:mod:`staggered_cli.signals.partial`,
+        :func:`staggered_cli.ops.partial.confirmed`); BVH only (``UsageError``).
 
     Returns
     -------
@@ -644,6 +643,8 @@ def extract(
         "contact_joints": list(joints),
         "contact_pulse": probability.DEFAULT_PULSE,
     }
+    if partial:
+        parameters["partial"] = True
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
     if fits_by_column(motion):  # a long clip's fit makes its rotations a joint at a time
         motion.release_local()
@@ -659,9 +660,7 @@ def extract(
         parameters=parameters,
     )
     if partial:  # the candidates that earn their knots in the real spline layer
-        found = partial_ops.confirmed(doc, candidates)
-        parameters = dict(doc.parameters, partial_poses={p: t.tolist() for p, t in found.items()})
-        doc = replace(doc, parameters=parameters)
+        doc = partial_ops.confirmed(doc, candidates)
     if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
         motion.release_local()
     return doc

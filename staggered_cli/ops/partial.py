@@ -1,7 +1,9 @@
-"""Partial poses in a document (issue 37): which were found, for which part.
+"""Partial poses found by extract (issue 37): which candidates earn their knots.
 
-The finding is :mod:`staggered_cli.signals.partial`; this module reads what
-:func:`staggered_cli.ops.extract.extract` recorded.
+:mod:`staggered_cli.signals.partial` proposes partial poses from each body
+part's own evidence and the placement proxy; :func:`confirmed` adds those
+that make the real spline layer better, judged in world space, to the
+document (:func:`staggered_cli.ops.cull.add_poses` with the part).
 """
 
 from __future__ import annotations
@@ -13,89 +15,84 @@ import numpy as np
 from ..errors import StaggeredWarning, UsageError
 from ..model.document import Document
 from ..model.sampling import local_pose
-from ..motion import BvhMotion
-from ..signals import partial as partial_signals
 from ..skeleton import forward_kinematics
 from . import cull
-
-#: The document parameter the partial poses extract found are recorded in:
-#: body part -> their times, seconds.
-PARAMETER = "partial_poses"
-
-
-def part_roots(motion: BvhMotion) -> dict[str, int]:
-    """Body part -> its root joint, for the parts the skeleton has."""
-    return partial_signals.part_roots(motion)
-
-
-def partial_times(doc: Document) -> dict[str, np.ndarray]:
-    """Body part (``left-arm``, ...) -> the times (seconds, sorted) of its partial poses."""
-    found = doc.parameters.get(PARAMETER) or {}
-    return {str(p): np.sort(np.asarray(t, dtype=float)) for p, t in found.items()}
-
 
 #: A partial pose stays only where it lowers the spline layer's world error
 #: by at least this share of what the knots of the whole-body pose a cull
 #: would take first hold in place, per knot.
-WORLD_VALUE = 1.0
+WORLD_VALUE = 0.7
 
 
-def _world_error(doc: Document, rot: np.ndarray, tr: np.ndarray) -> float:
-    """Summed over joints, the mean distance (file units) of the spline
-    layer's joints from the source's (what ``bake --layers splines`` misses)."""
-    pos = forward_kinematics(doc.source.skeleton, rot, tr)[1]
-    return float(np.sum(np.mean(np.linalg.norm(pos - doc.source.world_positions(), axis=-1), axis=0)))
-
-
-def _knots_of(doc: Document, joints: np.ndarray) -> int:
-    """Knots of the variables that drive ``joints``."""
-    n = 0
-    for tr in doc.tracks:
-        n += int(np.sum(np.diff(tr.knots.ptr)[np.isin(tr.targets, joints)]))
-    return n
-
-
-def confirmed(doc: Document, candidates: list[tuple[str, int]]) -> dict[str, np.ndarray]:
-    """The partial poses of ``candidates`` ((part, frame), best first, from
-    :func:`staggered_cli.signals.partial.find_partial`) that earn their knots
-    in the real spline layer, judged in world space: each, added in turn, must
-    lower the error of the spline layer alone (joint positions, summed over
-    joints) by at least :data:`WORLD_VALUE` times, per knot, what the
-    whole-body pose a cull would take first holds in place.  The proxy
-    cannot see this: where a joint's spline error cancels its parent's
-    (a walk's spine against its pelvis), a knot of the one alone makes the
-    figure worse.  Body part -> times (seconds, sorted)."""
-    if not candidates or doc.n_poses < 3:
-        return {}
-    times = doc.frame_times
-    rot, tr = local_pose(doc, times, "splines")
-    rot, tr = rot.copy(), tr.copy()
-    error = _world_error(doc, rot, tr)
-    fewer = cull.keep_poses(doc, cull.choose(doc, keep=str(doc.n_poses - 1), ignore_contacts=True))
-    r1, t1 = local_pose(fewer, times, "splines")
-    every = np.arange(doc.source.skeleton.n_joints)
-    value = max(_world_error(doc, r1, t1) - error, 0.0) / max(_knots_of(doc, every) - _knots_of(fewer, every), 1)
-    joints = partial_signals.part_joints(doc.source)
-    per_part: dict[str, Document] = {}
+def partial_times(doc: Document) -> dict[str, np.ndarray]:
+    """Body part (``'@left-arm'``, ...) -> the times (seconds, sorted) of its
+    partial poses in the base layer."""
     out: dict[str, list[float]] = {}
+    for t, p in zip(doc.pose_t, doc.pose_part, strict=True):
+        if p is not None:
+            out.setdefault(p, []).append(float(t))
+    return {p: np.array(ts) for p, ts in out.items()}
+
+
+def _error(doc: Document, frames: np.ndarray) -> float:
+    """Over ``frames``, summed over joints and frames, the distance (file
+    units) of the spline layer's joints from the source's, divided by the
+    clip's frame count: the part of ``bake --layers splines``'s mean error
+    (times the joint count) those frames hold."""
+    rot, tr = local_pose(doc, frames * doc.frame_time, "splines")
+    pos = forward_kinematics(doc.source.skeleton, rot, tr)[1]
+    return float(np.sum(np.linalg.norm(pos - doc.source.world_positions()[frames], axis=-1)) / doc.n_frames)
+
+
+def _knot_count(doc: Document) -> int:
+    return int(sum(len(tr.knots.t) for tr in doc.tracks))
+
+
+def _span(doc: Document, mask: np.ndarray, t: float) -> tuple[float, float]:
+    """The times between which a knot at ``t`` of the variables ``mask``
+    (V,) changes their splines: their knots before and after it."""
+    lo, hi, col = t, t, 0
+    for tr in doc.tracks:
+        for i in np.flatnonzero(mask[col : col + tr.n_vars]):
+            kt = tr.knots.t[tr.knots.of(int(i))]
+            j = int(np.searchsorted(kt, t))
+            lo = min(lo, float(kt[max(j - 1, 0)]))
+            hi = max(hi, float(kt[min(j, len(kt) - 1)]))
+        col += tr.n_vars
+    return lo, hi
+
+
+def confirmed(doc: Document, candidates: list[tuple[str, int]]) -> Document:
+    """``doc`` with the partial poses of ``candidates`` ((part, frame), best
+    first, from :func:`staggered_cli.signals.partial.find_partial`) that earn
+    their knots in the real spline layer.
+
+    Each, added in turn, must lower the error of the spline layer alone
+    (world joint positions, summed over the joints) by at least
+    :data:`WORLD_VALUE` times, per knot it adds, what the knots of the
+    whole-body pose a cull would take first hold in place.  The proxy that
+    proposed it cannot see this: where a joint's spline error cancels its
+    parent's (a walk's spine against its pelvis), a knot of the one alone
+    can make the figure worse.
+    """
+    if not candidates or doc.n_poses < 3:
+        return doc
+    every = np.arange(doc.n_frames)
+    fewer = cull.keep_poses(doc, cull.choose(doc, keep=str(doc.n_poses - 1)))
+    value = max(_error(fewer, every) - _error(doc, every), 0.0) / max(_knot_count(doc) - _knot_count(fewer), 1)
+    if value <= 0.0:
+        return doc
     for part, frame in candidates:
         t = float(frame) * doc.frame_time
-        base = per_part.get(part, doc)
-        js = joints[part]
-        with warnings.catch_warnings():  # a refinement of another part that collapses does not count
-            warnings.simplefilter("ignore", StaggeredWarning)
+        with warnings.catch_warnings():  # a refinement of the part in the way: the candidate is not taken
+            warnings.simplefilter("error", StaggeredWarning)
             try:
-                trial = cull.add_pose(base, t)
-            except UsageError:
+                trial = cull.add_poses(doc, [t], part)
+            except (UsageError, StaggeredWarning):
                 continue
-        r2, t2 = local_pose(trial, times, "splines")
-        rot_try, tr_try = rot.copy(), tr.copy()
-        rot_try[:, js] = r2[:, js]
-        tr_try[:, js] = t2[:, js]
-        e = _world_error(doc, rot_try, tr_try)
-        added = _knots_of(trial, js) - _knots_of(base, js)
-        if error - e >= WORLD_VALUE * value * added:
-            per_part[part] = trial
-            rot, tr, error = rot_try, tr_try, e
-            out.setdefault(part, []).append(t)
-    return {p: np.sort(np.array(ts)) for p, ts in out.items()}
+        lo, hi = _span(doc, doc.part_mask(part), t)
+        frames = every[int(np.floor(lo / doc.frame_time)) : int(np.ceil(hi / doc.frame_time)) + 1]
+        gain = _error(doc, frames) - _error(trial, frames)
+        if gain >= WORLD_VALUE * value * (_knot_count(trial) - _knot_count(doc)):
+            doc = trial
+    return doc

@@ -39,6 +39,7 @@ import numpy as np
 
 from .. import names as joint_names
 from ..errors import UsageError
+from ..model.document import part_of_targets
 from ..motion import BvhMotion
 from . import placement
 from .probability import local_maxima
@@ -59,41 +60,46 @@ PART_VALUE = 0.25
 
 
 def part_roots(motion: BvhMotion) -> dict[str, int]:
-    """Body part -> its root joint (:func:`staggered_cli.names.body_part`),
-    for the parts the skeleton has."""
+    """Body part (``'@left-arm'``, ...) -> its root joint
+    (:func:`staggered_cli.names.body_part`), for the parts the skeleton has."""
     sk = motion.skeleton
     roots = {}
     for part in joint_names.PARTS:
         try:
-            roots[part] = joint_names.body_part(part, sk.names, sk.parents)
+            roots["@" + part] = joint_names.body_part(part, sk.names, sk.parents)
         except UsageError:
             continue
     return roots
 
 
 def part_joints(motion: BvhMotion) -> dict[str, np.ndarray]:
-    """Body part -> the indices of its joints: the subtree of the part's
-    root less the other parts' below it (the spine's arms and head).  Parts
-    the skeleton does not have are left out."""
-    sk = motion.skeleton
-    roots = part_roots(motion)
+    """Body part -> the indices of its joints, as
+    :func:`staggered_cli.model.document.part_of_targets` has them (the
+    subtree of the part's root less the other parts' inside it; never the
+    root joint)."""
+    every = np.arange(motion.skeleton.n_joints)
     out = {}
-    for part, r in roots.items():
-        own = set(int(j) for j in sk.subtree(r))
-        for other, o in roots.items():
-            if other != part and o != r and o in own:
-                own -= set(int(j) for j in sk.subtree(o))
-        if own:
-            out[part] = np.array(sorted(own), dtype=int)
+    for part in part_roots(motion):
+        try:
+            out[part] = every[part_of_targets(motion, every, part)]
+        except UsageError:  # a part with no joints of its own
+            continue
     return out
 
 
 def part_columns(motion: BvhMotion, layout) -> dict[str, np.ndarray]:
     """Body part -> the columns (in the document's variable order:
-    translations first, then rotations) of the variables that drive its
-    joints; ``layout``: the variables' ``(kind, names, targets, ...)``."""
+    translations first, then rotations) of the variables it owns
+    (:func:`staggered_cli.model.document.part_of_targets`); ``layout``: the
+    variables' ``(kind, names, targets, ...)``."""
     targets = np.concatenate([np.asarray(v[2], dtype=int) for v in layout]) if layout else np.zeros(0, int)
-    return {part: np.flatnonzero(np.isin(targets, joints)) for part, joints in part_joints(motion).items()}
+    out = {}
+    for part in part_roots(motion):
+        try:
+            out[part] = np.flatnonzero(part_of_targets(motion, targets, part))
+        except UsageError:
+            continue
+    return out
 
 
 def part_probability(
