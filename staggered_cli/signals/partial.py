@@ -17,17 +17,21 @@ whole-body poses.  After the whole-body poses are placed, each body part
    gate is, reaches the same ``significance`` in figure heights a second),
    on the placement grid, and not covered: the variables holding
    :data:`COVERED_SHARE` of the part's weight have no knot (a whole-body
-   pose time or a refined extreme) within ``min_spacing`` there.
+   pose time or a refined extreme) within ``min_spacing`` there, and no
+   part variable is inside a pose's staggered span there (between its
+   editing and its extreme knot: a knot there would reorder them).
 3. **Placed by the fit, restricted to the part**: greedily, the site where
    one more knot of every part variable cuts the part's spline misfit most
    (the placement proxy of :mod:`.placement` on the part's variables: the
-   segments from each variable's knot before to its knot after), as long
-   as one earns its keep: the misfit of those segments falls to
-   :data:`PART_GAIN` of what it was or less, and the misfit it removes
-   per knot is at least :data:`PART_VALUE` times what a whole-body pose
-   that a cull would take first holds in place per knot
-   (:func:`pose_value`).  A part's partial poses are at least
-   :data:`PART_SPACING` seconds apart.
+   segments from each variable's knot before to its knot after) is a
+   *candidate*, as long as one cuts the misfit of those segments to
+   :data:`PART_GAIN` of what it was or less and removes per knot at least
+   :data:`PART_VALUE` times what a whole-body pose that a cull would take
+   first holds in place per knot (:func:`pose_value`).  A part's
+   candidates are at least :data:`PART_SPACING` seconds apart.
+4. **Confirmed in the real spline layer**
+   (:func:`staggered_cli.ops.partial.confirmed`): the candidates, best
+   first, become partial poses where they earn their knots in world space.
 
 Parts whose features the whole-body poses already cover get none: a plain
 walk gains few or none.  C3D clips have no body parts.
@@ -52,10 +56,11 @@ VALUE_PERCENTILE = 25.0
 #: A feature of a part is covered where the variables of at least this share
 #: of the part's weight have a knot within ``min_spacing``.
 COVERED_SHARE = 0.5
-#: A partial pose stays where it cuts the part's misfit around it to this share or less.
+#: A candidate cuts the part's misfit around it to this share or less ...
 PART_GAIN = 0.75
-#: ... and removes, per knot, at least this share of the misfit an average
-#: whole-body pose's knot holds in place.
+#: ... and removes, per knot, at least this share of the misfit a
+#: whole-body pose's knot holds in place (:func:`pose_value`): loose, the
+#: real spline layer decides (:func:`staggered_cli.ops.partial.confirmed`).
 PART_VALUE = 0.25
 
 
