@@ -199,7 +199,7 @@ def test_batch_bakes_what_the_pipe_bakes(tmp_path):
     from staggered_cli.cli.batch import parse_steps
 
     assert parse_steps("cull --keep 30%|succession --joint @left-arm --offset 0.03 --clamp") == [
-        ("cull", {"keep": "30%", "interval": None, "select": None, "add_time": [], "by": "error",
+        ("cull", {"keep": "30%", "interval": None, "select": None, "add_time": [], "part": None, "by": "error",
                   "ignore_contacts": False}),
         ("succession", {"offset": 0.03, "power": 1.0, "joint": "@left-arm", "chain": None, "poses": None,
                         "time": None, "clamp": True}),
