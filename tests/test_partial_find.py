@@ -20,7 +20,7 @@ from staggered_cli.ops.extract import extract
 from staggered_cli.signals import partial as partial_signals
 
 from . import part_events, partial_knots
-from .conftest import dev_motion, mocap, one_line_error
+from .conftest import dev_bvh_files, dev_document, dev_motion, mocap, one_line_error
 from .splice import SPLICES, arm_joints, spliced
 
 #: The window of "at most one partial pose per part per 0.3 s".
@@ -166,3 +166,18 @@ def test_extract_partial_on_the_command_line_records_the_partial_poses(tmp_path)
     assert set(got) == set(want)
     for p in want:
         np.testing.assert_allclose(got[p], want[p], atol=1e-6)
+
+
+@pytest.mark.parametrize("name", dev_bvh_files())
+def test_every_dev_bvh_round_trips_to_its_bytes_with_partial_poses_and_culls_exactly(name):
+    from staggered_cli.io.bvh import bvh_bytes
+
+    doc = extract(dev_motion(name), source_name=name, partial=True)
+    whole = dev_document(name)
+    is_whole = np.array([p is None for p in doc.pose_part])
+    np.testing.assert_array_equal(doc.pose_t[is_whole], whole.pose_t)
+    assert bvh_bytes(st.bake(doc)) == mocap(name).read_bytes()
+    n = max(2, doc.n_poses // 3)
+    culled = st.cull(doc, keep=str(n))
+    assert culled.n_poses == n
+    assert bvh_bytes(st.bake(culled)) == mocap(name).read_bytes()
