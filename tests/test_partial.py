@@ -392,3 +392,75 @@ def test_the_cull_command_adds_partial_poses(tmp_path):
     r = run(["cull", src, "--add-time", "1", "--part", "@tail", "-o", tmp_path / "x.stag"])
     assert r.exit_code == 2 and "--part must be one of @left-arm" in r.stderr
     assert not (tmp_path / "x.stag").exists()
+
+
+def test_place_extremes_moves_partial_knots_without_changing_the_motion(walk, arm_walk):
+    ks = [k for k, p in enumerate(arm_walk.pose_part) if p]
+    mask = arm_walk.part_mask("@left-arm")
+    r = arm_walk.refinements().copy()
+    r[ks[0], mask] = 0.03
+    r[ks[1], mask] = -0.02
+    r[ks[1], ~mask] = 0.5  # outside the part: no knot, ignored
+    placed = cull.place_extremes(arm_walk, r)
+    got = placed.refinements()
+    np.testing.assert_allclose(got[ks[0], mask], 0.03, atol=1e-12)
+    np.testing.assert_allclose(got[ks[1], mask], -0.02, atol=1e-12)
+    assert np.all(got[ks[1], ~mask] == 0.0)
+    assert same_variables(arm_walk, placed, ~mask)
+    np.testing.assert_allclose(bake(placed, ik=False).channels, bake(walk, ik=False).channels, atol=1e-9)
+    # a knot placed across a neighbour is refused
+    r[ks[0], mask] = 0.5
+    with pytest.raises(st.UsageError, match="cross"):
+        cull.place_extremes(arm_walk, r)
+
+
+def test_from_motion_builds_partial_poses_as_add_poses_does(walk, arm_walk):
+    from staggered_cli.model.variables import from_motion
+
+    motion = walk.source
+    new = midpoints(walk, 4)
+    t = np.concatenate([walk.pose_t, new])
+    refine = np.concatenate([walk.refinements(), np.zeros((4, len(walk.variable_names)))])
+    built = from_motion(motion, t, refine, pose_part=[None] * walk.n_poses + ["@left-arm"] * 4)
+    assert built.pose_part == arm_walk.pose_part
+    for a, b in zip(built.tracks, arm_walk.tracks, strict=True):
+        assert np.array_equal(a.knot_t, b.knot_t) and np.array_equal(a.knot_pose, b.knot_pose)
+    np.testing.assert_allclose(bake(built, ik=False).channels, motion.channels, atol=1e-6)
+    with pytest.raises(UsageError, match="first and last pose"):
+        from_motion(motion, t, refine, pose_part=["@left-arm"] + [None] * (len(t) - 1))
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu3dsmax_131_02_start_walk_stop.bvh", "games105_idle.bvh"],
+)
+def test_partial_poses_of_every_part_on_real_skeletons(name):
+    """On skeletons of four naming schemes: a partial pose of each part the
+    skeleton has, lossless, bit-identical outside the part, through a file
+    and a cull --keep."""
+    from staggered_cli.names import PARTS
+
+    doc = dev_document(name)
+    t = doc.pose_t
+    spare = [x for x in np.linspace(0.05, 0.95, 40) * doc.duration if np.min(np.abs(t - x)) > 2 * doc.frame_time]
+    parts, times = [], []
+    for p, x in zip(PARTS, spare[:: max(1, len(spare) // 6)], strict=False):
+        try:
+            doc.part_mask("@" + p)
+        except UsageError:
+            continue
+        parts.append("@" + p)
+        times.append(float(x))
+    assert len(parts) >= 4, parts
+    with staggered_warnings():  # a time inside another pose's staggered span collapses it
+        out = cull.add_poses(doc, times, parts)
+    assert sorted(p for p in out.pose_part if p) == sorted(parts)
+    owned = np.zeros(len(doc.variable_names), dtype=bool)
+    for p in parts:
+        owned |= doc.part_mask(p)
+    assert same_variables(doc, out, ~owned)
+    np.testing.assert_allclose(bake(out, ik=False).channels, bake(doc, ik=False).channels, atol=1e-9)
+    back = from_parts(*to_parts(out))
+    assert back.pose_part == out.pose_part
+    n = (out.n_poses + 2) // 2
+    assert cull.choose(out, keep=str(n), ignore_contacts=True).sum() == n

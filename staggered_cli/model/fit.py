@@ -107,6 +107,7 @@ def build_track(
     dense: np.ndarray,
     pose_t: np.ndarray,
     refine: np.ndarray,
+    owns: np.ndarray | None = None,
 ) -> Track:
     """Fit a one-layer track to dense motion for given poses and refinements.
 
@@ -118,20 +119,22 @@ def build_track(
         long clip's rotations, made a joint at a time).
     pose_t : (K,) strictly increasing pose times within the clip.
     refine : (K, V) refinements in seconds (0 on the first and last pose).
+    owns : (K, V) bool, the variables each pose has knots in (partial
+        poses, see :func:`knots_from_poses`); None: all.
     """
     K, V = refine.shape
     extreme_t = pose_t[:, None] + refine
     if isinstance(dense, np.ndarray):
         value = sample_dense(kind, frame_t, dense, extreme_t)
         edit_value = sample_dense(kind, frame_t, dense, pose_t)
-        knots = knots_from_poses(pose_t, refine, value, edit_value, names)
+        knots = knots_from_poses(pose_t, refine, value, edit_value, names, owns)
         columns = [dense[:, i] for i in range(V)]
     else:
         # a sequence of V (T, D) columns, each made when asked for: every
         # variable's knot values are sampled when the fit takes its column
         # (the same numbers as from all of them at once)
         d = DIM[kind]
-        knots = knots_from_poses(pose_t, refine, np.zeros((K, V, d)), np.zeros((K, V, d)), names)
+        knots = knots_from_poses(pose_t, refine, np.zeros((K, V, d)), np.zeros((K, V, d)), names, owns)
         columns = _SampledColumns(kind, frame_t, dense, pose_t, extreme_t, knots)
     check_knot_order(knots.ptr, knots.t, names)
     layer = fit_layer(kind, knots, [frame_t] * V, columns)

@@ -15,7 +15,7 @@ import numpy as np
 from ..contacts.constraint import Constraint
 from ..errors import UsageError
 from ..motion import BvhMotion, MarkerMotion
-from .document import Document, seconds, variable_layout
+from .document import Document, canonical_part, part_of_targets, seconds, variable_layout
 from .fit import build_track
 from .kinds import ROTATION
 
@@ -98,6 +98,7 @@ def from_motion(
     constraints: tuple[Constraint, ...] = (),
     signals: dict | None = None,
     parameters: dict | None = None,
+    pose_part: tuple[str | None, ...] | None = None,
 ) -> Document:
     """Build a document with poses at chosen times and refinements.
 
@@ -109,6 +110,11 @@ def from_motion(
     refine : (K, V) refinements in seconds over all variables (translations
         first, then rotations); zero by default.  The first and last poses
         are kept unrefined.
+    pose_part : (K,) each pose's body part (``'@left-arm'``) for partial
+        poses, which get knots in that part's variables only (their
+        refinements elsewhere are ignored), None for whole-body poses;
+        default all whole-body.  The first and last pose (added when
+        missing) are whole-body.
 
     Raises
     ------
@@ -128,17 +134,31 @@ def from_motion(
     refine = np.asarray(refine, dtype=float)
     if refine.shape != (len(pose_t), V):
         raise UsageError(f"refinements must have shape ({len(pose_t)}, {V}), got {refine.shape}")
+    parts = [None] * len(pose_t) if pose_part is None else [None if p is None else canonical_part(p) for p in pose_part]
+    if len(parts) != len(pose_t):
+        raise UsageError(f"pose_part gives {len(parts)} parts for {len(pose_t)} poses")
     # first and last frame always carry an unrefined pose
     extra = [t for t in (0.0, end) if not np.any(np.abs(pose_t - t) < 1e-9)]
     if extra:
         pose_t = np.concatenate([pose_t, extra])
+        parts += [None] * len(extra)
         refine = np.concatenate([refine, np.zeros((len(extra), V))])
         if priority is not None:
             priority = np.concatenate([priority, np.full(len(extra), np.inf)])
     order = np.argsort(pose_t, kind="stable")
     pose_t, refine = pose_t[order], refine[order]
+    parts = tuple(parts[i] for i in order)
     if np.any(np.diff(pose_t) <= 0):
         raise UsageError("pose times must be distinct")
+    if parts[0] is not None or parts[-1] is not None:
+        raise UsageError("the first and last pose (the clip's ends) must be whole-body")
+    owns = np.ones((len(pose_t), V), dtype=bool)
+    if any(p is not None for p in parts):
+        targets = np.concatenate([t for _, _, t, _ in variables])
+        masks = {p: part_of_targets(motion, targets, p) for p in set(parts) if p is not None}
+        for k, p in enumerate(parts):
+            if p is not None:
+                owns[k] = masks[p]
     refine[0] = 0.0
     refine[-1] = 0.0
     if priority is None:
@@ -149,7 +169,8 @@ def from_motion(
     tracks, col = [], 0
     for kind, names, targets, dense in variables:
         n = len(names)
-        tracks.append(build_track(kind, names, targets, frame_t, dense, pose_t, refine[:, col : col + n]))
+        own = None if owns.all() else owns[:, col : col + n]
+        tracks.append(build_track(kind, names, targets, frame_t, dense, pose_t, refine[:, col : col + n], own))
         col += n
     sha = hashlib.sha256(source_bytes).hexdigest() if source_bytes is not None else ""
     return Document(
@@ -162,4 +183,5 @@ def from_motion(
         constraints=tuple(constraints),
         signals=dict(signals or {}),
         parameters=dict(parameters or {}),
+        pose_part=parts,
     )

@@ -323,15 +323,16 @@ def add_poses(
         hi = np.maximum(doc.pose_t[:, None], ext)
         conflict = np.zeros(refine.shape, dtype=bool)
         for time, m in zip(new_t, mine, strict=True):
-            conflict |= owns & (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi) & m[None, :]
-        for k in np.flatnonzero(conflict.any(axis=1)):
-            names = ", ".join(tr.names[i] for i in np.flatnonzero(conflict[k]))
-            warn(
-                f"{arg('add_time')} %s: pose %d's refinements of %s collapse to 0 to make room",
-                ", ".join(doc.seconds(t) for t in new_t),
-                k,
-                names,
-            )
+            here = owns & (refine != 0.0) & (lo <= time + 1e-9) & (time - 1e-9 <= hi) & m[None, :] & ~conflict
+            for k in np.flatnonzero(here.any(axis=1)):
+                names = ", ".join(tr.names[i] for i in np.flatnonzero(here[k]))
+                warn(
+                    f"{arg('add_time')} %s: pose %d's refinements of %s collapse to 0 to make room",
+                    doc.seconds(time),
+                    k,
+                    names,
+                )
+            conflict |= here
         refine = np.where(conflict, 0.0, refine)
         value = np.where(conflict[..., None], edit, value)
         V = tr.n_vars
@@ -346,9 +347,78 @@ def add_poses(
             tr.names,
             owns=np.insert(owns, at, mine, axis=0),
         )
+        knots = _exact_times(knots, np.insert(np.where(conflict, np.nan, ext_t), at, np.nan, axis=0))
         tracks.append(restructure(tr, knots, frame_t=doc.frame_times))
     priority = np.insert(doc.priority, at, 0.0)
     pose_part = list(doc.pose_part)
     for k, p in zip(new_index, new_parts, strict=True):
         pose_part.insert(int(k), p)
     return reprioritized(with_poses(doc, pose_t, priority, tuple(pose_part), tracks=tuple(tracks)))
+
+
+def place_extremes(doc: Document, refine: np.ndarray) -> Document:
+    """The document with its extreme knots at ``pose_t + refine``, motion
+    unchanged (SPEC invariant 2): where to put the knots, not a retiming.
+
+    ``refine`` (K, V) seconds over all variables (0 or anything where a
+    partial pose has no knot: ignored there).  Where a pose's refinement of
+    a variable changes, its extreme knot moves to ``t_k + r`` with the value
+    the motion (base layer) has there, and its editing knot (``r != 0``)
+    holds the value at ``t_k``; the changed segments are refitted and their
+    displacement maps measured again, so the baked motion is the same.  Knots
+    whose refinement stays keep their values, and every other variable its
+    knots, splines and displacement maps, bit for bit.  This is how
+    ``extract`` places knots on extremes, for poses added later (e.g. partial
+    poses after :func:`add_poses`); :func:`staggered_cli.ops.timing.change_refinements`
+    instead retimes the motion.  KnotOrderError where knots would cross or
+    leave the clip; the first and last pose stay unrefined.
+    """
+    from ..errors import KnotOrderError
+
+    refine = np.asarray(refine, dtype=float)
+    V = len(doc.variable_names)
+    if refine.shape != (doc.n_poses, V):
+        raise UsageError(f"refinements must have shape ({doc.n_poses}, {V}), got {refine.shape}")
+    if not np.all(np.isfinite(refine)):
+        raise UsageError("refinements must be finite")
+    tracks, col = [], 0
+    for tr, owns in zip(doc.tracks, doc.track_owns(), strict=True):
+        want = np.where(owns, refine[:, col : col + tr.n_vars], 0.0)
+        col += tr.n_vars
+        want[[0, -1]] = 0.0
+        ext_t, value, edit = pose_arrays(tr, doc.n_poses)
+        have = np.where(owns, ext_t - doc.pose_t[:, None], 0.0)
+        # unchanged where the knot stays (a - b + b need not be a to the bit)
+        moved = owns & (np.abs(want - have) > 1e-12)
+        if not moved.any():
+            tracks.append(tr)
+            continue
+        new = np.where(moved, want, have)
+        ext = doc.pose_t[:, None] + new
+        if np.any(ext[moved] < -1e-9) or np.any(ext[moved] > doc.duration + 1e-9):
+            raise KnotOrderError("extreme knots must lie within the clip")
+        kk, ii = np.nonzero(moved)
+        value = value.copy()
+        value[kk, ii] = evaluate_at(tr, ii, ext[kk, ii], depth=1)
+        edit = np.where((new != 0.0)[..., None], edit, value)
+        ek, ei = np.nonzero(moved & (new != 0.0))
+        edit[ek, ei] = evaluate_at(tr, ei, doc.pose_t[ek], depth=1)
+        knots = knots_from_poses(doc.pose_t, new, value, edit, tr.names, owns=owns)
+        knots = _exact_times(knots, np.where(moved, np.nan, ext_t))
+        tracks.append(restructure(tr, knots, frame_t=doc.frame_times))
+    return doc.with_tracks(tuple(tracks))
+
+
+def _exact_times(knots, ext_t: np.ndarray):
+    """``knots`` with the extreme knots that stay at their old times
+    ``ext_t`` (K, V) (NaN: new or moved) to the bit: ``t_k + (e - t_k)`` may
+    differ from ``e`` in the last place, and a segment whose knot moved by
+    that is refitted."""
+    keep = ext_t[knots.pose, knots.var]
+    same = ~knots.editing & ~np.isnan(keep)
+    if not same.any():
+        return knots
+    t = knots.t.copy()
+    t[same] = keep[same]
+    return knots.with_times(t)
+
