@@ -223,6 +223,7 @@ def extract(
     contact_tolerance: float = 0.03,
     significance: float = 0.5,
     min_spacing: float = 0.1,
+    partial: bool = False,
 ) -> Document:
     """Find the staggered poses, refinements, contacts, splines and
     displacement maps of a dense clip (the paper's section 4).
@@ -249,6 +250,10 @@ def extract(
         body (0 keeps every local maximum).
     min_spacing : float
         Fewest seconds between two poses.
+    partial : bool
+        After the whole-body poses, add each body part's own partial poses
+        (``doc.pose_part``) where its features fall between them and earn
+        their knots (BVH only).
 
     Returns
     -------
@@ -294,6 +299,7 @@ def extract(
         source_name=motion.name,
         source_bytes=motion.source or None,
         contact_joints=_names(contact_joints, "contact_joints"),
+        partial=bool(partial),
         **options,
     )
 
@@ -368,9 +374,7 @@ def cull(
     times = [_number(t, "add_time") for t in times]
     choosing = keep is not None or interval is not None or select is not None
     if not choosing and not times:
-        raise UsageError(
-            f"say what to keep: {arg('keep')}, {arg('interval')}, {arg('select')}, or {arg('add_time')}"
-        )
+        raise UsageError(f"say what to keep: {arg('keep')}, {arg('interval')}, {arg('select')}, or {arg('add_time')}")
     if keep is not None:
         check_keep(keep)
     span = _span(interval, "interval")
@@ -622,9 +626,7 @@ def succession(
         raise UsageError(f"{arg('power')} must be positive, got {power}")
     if (joint is None) == (chain is None):
         raise UsageError(f"give exactly one of {arg('joint')} and {arg('chain')}")
-    return op(
-        doc, s, p, joint=joint, chain=_names(chain, "chain"), poses=_pose_mask(doc, poses, time), clamp=clamp
-    )
+    return op(doc, s, p, joint=joint, chain=_names(chain, "chain"), poses=_pose_mask(doc, poses, time), clamp=clamp)
 
 
 def randomize(

@@ -27,6 +27,7 @@ that suggests the closest names: those of the same side and body segment
 from __future__ import annotations
 
 import difflib
+import functools
 import re
 from collections.abc import Sequence
 
@@ -62,6 +63,14 @@ def tokens(name: str) -> list[str]:
     """Lower-case words of a joint name: ``lTorso_Clavicle`` -> ``['l', 'torso',
     'clavicle']``, ``LHipJoint`` -> ``['l', 'hip', 'joint']``, ``lhand`` ->
     ``['l', 'hand']``."""
+    return list(_tokens(name))
+
+
+@functools.lru_cache(maxsize=4096)
+def _tokens(name: str) -> tuple[str, ...]:
+    """:func:`tokens`, kept: a body part is resolved for every partial pose
+    an operation meets, each time over every joint name (extract --partial
+    tries dozens)."""
     s = re.sub(r"([a-z0-9])([A-Z])", r"\1 \2", base_name(name))
     s = re.sub(r"([A-Z]+)([A-Z][a-z])", r"\1 \2", s)
     s = re.sub(r"([A-Za-z])(\d)|(\d)([A-Za-z])", lambda m: " ".join(g for g in m.groups() if g), s)
@@ -73,7 +82,7 @@ def tokens(name: str) -> list[str]:
             out += [_side_word(t), t[len(_side_word(t)) :]]  # ``leftelbow``
         elif t:
             out.append(t)
-    return out
+    return tuple(out)
 
 
 def _side_word(t: str) -> str:

@@ -93,6 +93,11 @@ def _read_motion(path: str):
     metavar="SECONDS",
     help="Fewest seconds between two poses (one pose per cluster of coordinated events).",
 )
+@click.option(
+    "--partial",
+    is_flag=True,
+    help="Also find each body part's own poses where its features fall between the whole-body poses (BVH only).",
+)
 @force_option
 @format_option
 def extract(
@@ -106,6 +111,7 @@ def extract(
     contact_tolerance,
     significance,
     min_spacing,
+    partial,
     force,
     fmt,
 ):
@@ -129,5 +135,6 @@ def extract(
         contact_tolerance=contact_tolerance,
         significance=significance,
         min_spacing=min_spacing,
+        partial=partial,
     )
     write_document(doc, output, fmt, force)

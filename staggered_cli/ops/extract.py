@@ -61,10 +61,12 @@ from ..contacts import ik
 from ..errors import DataError, UsageError, arg
 from ..model.document import Document
 from ..model.kinds import ROTATION
-from ..model.variables import dense_variables, fits_by_column, from_motion
+from ..model.variables import dense_variables, fits_by_column, from_motion, variable_layout
 from ..motion import BvhMotion, MarkerMotion, rate_problem
+from ..signals import partial as partial_poses
 from ..signals import placement, probability, trails
 from ..signals.smoothing import DEFAULT_FILTER_WIDTH, DEFAULT_SMOOTHING, tent_filter
+from . import partial as partial_ops
 
 #: Default significance gate, figure heights per second of motion.
 DEFAULT_SIGNIFICANCE = 0.5
@@ -501,6 +503,7 @@ def extract(
     contact_tolerance: float = contact_detection.DEFAULT_TOLERANCE,
     significance: float = DEFAULT_SIGNIFICANCE,
     min_spacing: float = DEFAULT_MIN_SPACING,
+    partial: bool = False,
 ) -> Document:
     """Find staggered poses, refinements and contacts in a dense clip.
 
@@ -518,6 +521,9 @@ def extract(
     contact_tolerance : contact tolerance, a fraction of the figure height.
     significance : amount of motion (figure heights per second) a candidate
         pose needs; 0 keeps every local maximum of ``P``.
+    partial : after the whole-body poses, each body part's own partial
+        poses where they earn their knots (:mod:`staggered_cli.signals.partial`,
+        :func:`staggered_cli.ops.partial.confirmed`); BVH only (``UsageError``).
 
     Returns
     -------
@@ -540,6 +546,8 @@ def extract(
     smoothing, filter_width, refine_window = checked["smoothing"], checked["filter_width"], checked["refine_window"]
     min_contact, contact_tolerance = checked["min_contact"], checked["contact_tolerance"]
     significance, min_spacing = checked["significance"], checked["min_spacing"]
+    if partial and not isinstance(motion, BvhMotion):
+        raise UsageError(f"{arg('partial')} needs a BVH skeleton's body parts: a C3D clip has none")
     T = motion.n_frames
     rate = float(motion.rate)
     size = motion.channels.size if isinstance(motion, BvhMotion) else motion.points.size
@@ -605,6 +613,23 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain)
     refine = refine_f * float(motion.frame_time)
+    candidates = []
+    if partial:
+        candidates = partial_poses.find_partial(
+            proxy,
+            ev.p,
+            ev.weights,
+            partial_poses.part_columns(motion, variable_layout(motion)),
+            pose_f,
+            refine_f,
+            rate=rate,
+            height=ev.figure_height,
+            filter_width=filter_width,
+            refine_window=refine_window,
+            significance=significance,
+            spacing=spacing,
+            stride=stride,
+        )
     del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
     parameters = {
@@ -618,6 +643,8 @@ def extract(
         "contact_joints": list(joints),
         "contact_pulse": probability.DEFAULT_PULSE,
     }
+    if partial:
+        parameters["partial"] = True
     sigs = {"P": P, "p": ev.p, "weights": ev.weights, "contact": contact}
     if fits_by_column(motion):  # a long clip's fit makes its rotations a joint at a time
         motion.release_local()
@@ -632,6 +659,8 @@ def extract(
         signals=sigs,
         parameters=parameters,
     )
+    if partial:  # the candidates that earn their knots in the real spline layer
+        doc = partial_ops.confirmed(doc, candidates)
     if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
         motion.release_local()
     return doc

@@ -1,0 +1,168 @@
+"""Partial poses (issue 37): what ``extract --partial`` finds and what it is worth.
+
+For the spliced clips of tests/splice.py (the arms of a dance on the body
+of a walk or a box lift) and every dev BVH file:
+
+* the partial poses per part, and per part per second;
+* the arms' own feature peaks (tests/part_events.py) that the whole-body
+  poses miss (no knot of the arm within 0.1 s), and how many of them have a
+  partial pose of that arm within 0.1 s (goal: 80 %);
+* the most partial poses of one part in any 0.3 s (goal: 1);
+* the spline layer alone (``bake --layers splines``: world joint positions
+  against the source, mean over joints and frames, % of figure height) with
+  the partial poses, against the whole-body poses only, *at the same total
+  number of knots*: the whole-body extract culled (``cull --keep``, by
+  error) by as many poses as it takes for the knots of the whole-body poses
+  left plus the partial poses not to exceed those of the whole-body
+  extract.  Goal: geometric mean of the ratios <= 0.9 on the spliced clips,
+  <= 1.0 on the dev BVH files, no file above 1.05;
+* extract's time with and without ``partial``.
+
+    python bench/bench_partial.py [FILE ...]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from staggered_cli.io.bvh import read_bvh  # noqa: E402
+from staggered_cli.ops import partial as partial_ops  # noqa: E402
+from staggered_cli.ops.extract import extract  # noqa: E402
+from staggered_cli.signals import partial as partial_signals  # noqa: E402
+from tests import part_events, partial_knots  # noqa: E402
+from tests.conftest import MOCAP  # noqa: E402
+from tests.events import TPOSE_FILES  # noqa: E402
+from tests.splice import SPLICES, spliced  # noqa: E402
+
+#: A knot this close to an arm's feature peak keys it, seconds.
+NEAR = part_events.NEAR
+#: The window of "one partial pose per part per 0.3 s".
+WINDOW = 0.3
+
+
+def most_in_window(times: np.ndarray, window: float = WINDOW) -> int:
+    """The most of ``times`` in any half-open window of ``window`` seconds."""
+    t = np.sort(np.asarray(times, float))
+    if len(t) == 0:
+        return 0
+    return int(np.max(np.searchsorted(t, t + window - 1e-9, side="left") - np.arange(len(t))))
+
+
+def arm_knots(doc, hand: str) -> np.ndarray:
+    """The knot times of the arm's joints, from the hand up to the arm's root
+    (the joint below the lowest one both hands share)."""
+    sk = doc.source.skeleton
+    j = sk.names.index(hand)
+    chain = [j]
+    roots = partial_signals.part_roots(doc.source)
+    while chain[-1] not in roots.values() and sk.parents[chain[-1]] >= 0:
+        chain.append(int(sk.parents[chain[-1]]))
+    tr = [t for t in doc.tracks if t.kind == "rotation"][0]
+    return np.concatenate([tr.knots.t[tr.knots.of(tr.index(sk.names[c]))] for c in chain])
+
+
+def hand_part(doc, hand: str) -> str:
+    """The body part (``@left-arm`` or ``@right-arm``) a hand joint is in."""
+    sk = doc.source.skeleton
+    j = sk.names.index(hand)
+    for part, root in partial_signals.part_roots(doc.source).items():
+        if part.endswith("-arm") and j in sk.subtree(root):
+            return part
+    return ""
+
+
+def coverage(motion, name: str, whole, found: dict[str, np.ndarray]) -> tuple[int, int]:
+    """(hit, missed): the arms' feature peaks the whole-body poses miss, and of
+    them those with a partial pose of their arm within :data:`NEAR`."""
+    sk = motion.skeleton
+    first = 1 if name in TPOSE_FILES else 0
+    peaks = part_events.feature_peaks(
+        sk.names, sk.parents, motion.world_positions(), float(motion.frame_time), motion.figure_height(), first=first
+    )
+    hit = missed = 0
+    for hand, t in peaks.items():
+        miss = part_events.missed(t, arm_knots(whole, hand))
+        missed += len(miss)
+        hit += int(part_events.hit(miss, found.get(hand_part(whole, hand), np.zeros(0))).sum())
+    return hit, missed
+
+
+def measure(name: str, motion) -> dict:
+    t0 = time.perf_counter()
+    whole = extract(motion)
+    t_whole = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with_parts = extract(motion, partial=True)
+    t_partial = time.perf_counter() - t0
+    found = partial_ops.partial_times(with_parts)
+    hit, missed = coverage(motion, name, whole, found)
+    worst = max((most_in_window(t) for t in found.values()), default=0)
+    ratio, knots = partial_knots.equal_knots_ratio(whole, with_parts)
+    return {
+        "file": name,
+        "K": whole.n_poses,
+        "partial": {p: len(t) for p, t in found.items()},
+        "per_s": {p: len(t) / whole.duration for p, t in found.items()},
+        "hit": hit,
+        "missed": missed,
+        "worst": worst,
+        "ratio": ratio,
+        "knots": knots,
+        "t_whole": t_whole,
+        "t_partial": t_partial,
+    }
+
+
+def report(rows: list[dict], label: str) -> tuple[float, float]:
+    ratios = np.array([r["ratio"] for r in rows])
+    gm = float(np.exp(np.mean(np.log(ratios)))) if len(ratios) else float("nan")
+    worst = float(ratios.max()) if len(ratios) else float("nan")
+    print(
+        f"{label}: spline layer with / without partial poses at equal knots, "
+        f"geometric mean {gm:.3f} (worst {worst:.3f})"
+    )
+    return gm, worst
+
+
+def main(argv: list[str]) -> None:
+    clips = [(n, lambda n=n: spliced(n)) for n in SPLICES]
+    files = [Path(a) for a in argv] or sorted(MOCAP.glob("*.bvh"))
+    clips += [(p.name, lambda p=p: read_bvh(p)) for p in files]
+    print(
+        f"{'clip':38s} {'K':>4s} {'knots':>11s} {'ratio':>6s} {'peaks hit/missed':>16s} {'max/0.3s':>8s} "
+        f"{'ext s':>6s} {'+part s':>7s}  partial poses (per s)"
+    )
+    rows = []
+    for name, make in clips:
+        r = measure(name, make())
+        rows.append(r)
+        parts = ", ".join(f"{p} {n} ({r['per_s'][p]:.2f})" for p, n in sorted(r["partial"].items())) or "none"
+        print(
+            f"{name:38s} {r['K']:4d} {r['knots'][0]:5d}/{r['knots'][1]:5d} {r['ratio']:6.3f} "
+            f"{r['hit']:7d}/{r['missed']:<8d} {r['worst']:8d} {r['t_whole']:6.2f} {r['t_partial']:7.2f}  {parts}"
+        )
+    spliced_rows = [r for r in rows if r["file"] in SPLICES]
+    dev_rows = [r for r in rows if r["file"] not in SPLICES]
+    hit = sum(r["hit"] for r in spliced_rows)
+    missed = sum(r["missed"] for r in spliced_rows)
+    print(
+        f"spliced clips: arm feature peaks the whole-body poses miss, with an arm pose within {NEAR:g} s: "
+        f"{hit}/{missed} ({100.0 * hit / max(missed, 1):.0f} %)"
+    )
+    print(f"most partial poses of one part in {WINDOW:g} s: {max(r['worst'] for r in rows)}")
+    report(spliced_rows, "spliced clips")
+    report(dev_rows, "dev BVH files")
+    tw = sum(r["t_whole"] for r in rows)
+    tp = sum(r["t_partial"] for r in rows)
+    print(f"extract time, all clips: {tw:.2f} s without partial, {tp:.2f} s with ({100.0 * (tp / tw - 1):+.0f} %)")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,98 @@
+"""Partial poses found by extract (issue 37): which candidates earn their knots.
+
+:mod:`staggered_cli.signals.partial` proposes partial poses from each body
+part's own evidence and the placement proxy; :func:`confirmed` adds those
+that make the real spline layer better, judged in world space, to the
+document (:func:`staggered_cli.ops.cull.add_poses` with the part).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..errors import StaggeredWarning, UsageError
+from ..model.document import Document
+from ..model.sampling import local_pose
+from ..skeleton import forward_kinematics
+from . import cull
+
+#: A partial pose stays only where it lowers the spline layer's world error
+#: by at least this share of what the knots of the whole-body pose a cull
+#: would take first hold in place, per knot.
+WORLD_VALUE = 0.7
+
+
+def partial_times(doc: Document) -> dict[str, np.ndarray]:
+    """Body part (``'@left-arm'``, ...) -> the times (seconds, sorted) of its
+    partial poses in the base layer."""
+    out: dict[str, list[float]] = {}
+    for t, p in zip(doc.pose_t, doc.pose_part, strict=True):
+        if p is not None:
+            out.setdefault(p, []).append(float(t))
+    return {p: np.array(ts) for p, ts in out.items()}
+
+
+def _error(doc: Document, frames: np.ndarray) -> float:
+    """Over ``frames``, summed over joints and frames, the distance (file
+    units) of the spline layer's joints from the source's, divided by the
+    clip's frame count: the part of ``bake --layers splines``'s mean error
+    (times the joint count) those frames hold."""
+    rot, tr = local_pose(doc, frames * doc.frame_time, "splines")
+    pos = forward_kinematics(doc.source.skeleton, rot, tr)[1]
+    return float(np.sum(np.linalg.norm(pos - doc.source.world_positions()[frames], axis=-1)) / doc.n_frames)
+
+
+def _knot_count(doc: Document) -> int:
+    return int(sum(len(tr.knots.t) for tr in doc.tracks))
+
+
+def _span(doc: Document, mask: np.ndarray, t: float) -> tuple[float, float]:
+    """The times between which a knot at ``t`` of the variables ``mask``
+    (V,) changes their splines: their knots before and after it."""
+    lo, hi, col = t, t, 0
+    for tr in doc.tracks:
+        for i in np.flatnonzero(mask[col : col + tr.n_vars]):
+            kt = tr.knots.t[tr.knots.of(int(i))]
+            j = int(np.searchsorted(kt, t))
+            lo = min(lo, float(kt[max(j - 1, 0)]))
+            hi = max(hi, float(kt[min(j, len(kt) - 1)]))
+        col += tr.n_vars
+    return lo, hi
+
+
+def confirmed(doc: Document, candidates: list[tuple[str, int]]) -> Document:
+    """``doc`` with the partial poses of ``candidates`` ((part, frame), best
+    first, from :func:`staggered_cli.signals.partial.find_partial`) that earn
+    their knots in the real spline layer.
+
+    Each, added in turn, must lower the error of the spline layer alone
+    (world joint positions, summed over the joints) by at least
+    :data:`WORLD_VALUE` times, per knot it adds, what the knots of the
+    whole-body pose a cull would take first hold in place.  The proxy that
+    proposed it cannot see this: where a joint's spline error cancels its
+    parent's (a walk's spine against its pelvis), a knot of the one alone
+    can make the figure worse.
+    """
+    if not candidates or doc.n_poses < 3:
+        return doc
+    every = np.arange(doc.n_frames)
+    fewer = cull.keep_poses(doc, cull.choose(doc, keep=str(doc.n_poses - 1)))
+    value = max(_error(fewer, every) - _error(doc, every), 0.0) / max(_knot_count(doc) - _knot_count(fewer), 1)
+    if value <= 0.0:
+        return doc
+    for part, frame in candidates:
+        t = float(frame) * doc.frame_time
+        with warnings.catch_warnings():  # a refinement of the part in the way: the candidate is not taken
+            warnings.simplefilter("error", StaggeredWarning)
+            try:
+                trial = cull.add_poses(doc, [t], part)
+            except (UsageError, StaggeredWarning):
+                continue
+        lo, hi = _span(doc, doc.part_mask(part), t)
+        frames = every[int(np.floor(lo / doc.frame_time)) : int(np.ceil(hi / doc.frame_time)) + 1]
+        gain = _error(doc, frames) - _error(trial, frames)
+        if gain >= WORLD_VALUE * value * (_knot_count(trial) - _knot_count(doc)):
+            doc = trial
+    return doc

@@ -1,0 +1,243 @@
+"""Partial poses: where a body part keys itself (issue 37; the paper's section 6).
+
+The paper leaves partial poses (poses that control a subset of the
+variables) unfinished: its poses own every variable.  When the arms move to
+their own rhythm (a gesture over a walk), their extremes fall between the
+whole-body poses.  After the whole-body poses are placed, each body part
+(``@left-arm``, ``@right-arm``, ``@left-leg``, ``@right-leg``, ``@spine``,
+``@head``, :func:`part_columns`) is looked at alone:
+
+1. **The part's pose probability** ``P_part(t) = tent(Σ w_i p_i / Σ w_i)``
+   over the part's variables only: the construction of ``P`` (paper 4.1)
+   restricted to the part.  Its local maxima are the part's feature
+   clusters.
+2. **The part's feature sites**: the frames within half the filter width
+   of a maximum of ``P_part`` where the part moves (its own amount of
+   motion, the weighted speed of its variables averaged as the whole-body
+   gate is, reaches the same ``significance`` in figure heights a second),
+   on the placement grid, and not covered: the variables holding
+   :data:`COVERED_SHARE` of the part's weight have no knot (a whole-body
+   pose time or a refined extreme) within ``min_spacing`` there, and no
+   part variable is inside a pose's staggered span there (between its
+   editing and its extreme knot: a knot there would reorder them).
+3. **Placed by the fit, restricted to the part**: greedily, the site where
+   one more knot of every part variable cuts the part's spline misfit most
+   (the placement proxy of :mod:`.placement` on the part's variables: the
+   segments from each variable's knot before to its knot after) is a
+   *candidate*, as long as one cuts the misfit of those segments to
+   :data:`PART_GAIN` of what it was or less and removes per knot at least
+   :data:`PART_VALUE` times what a whole-body pose that a cull would take
+   first holds in place per knot (:func:`pose_value`).  A part's
+   candidates are at least :data:`PART_SPACING` seconds apart.
+4. **Confirmed in the real spline layer**
+   (:func:`staggered_cli.ops.partial.confirmed`): the candidates, best
+   first, become partial poses where they earn their knots in world space.
+
+Parts whose features the whole-body poses already cover get none: a plain
+walk gains few or none.  C3D clips have no body parts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import names as joint_names
+from ..errors import UsageError
+from ..model.document import part_of_targets
+from ..motion import BvhMotion
+from . import placement
+from .probability import local_maxima
+from .smoothing import tent_filter
+
+#: Fewest seconds between two partial poses of one part.
+PART_SPACING = 0.3
+#: The whole-body poses a cull would take away first: this percentile of their value per knot.
+VALUE_PERCENTILE = 25.0
+#: A feature of a part is covered where the variables of at least this share
+#: of the part's weight have a knot within ``min_spacing``.
+COVERED_SHARE = 0.5
+#: A candidate cuts the part's misfit around it to this share or less ...
+PART_GAIN = 0.75
+#: ... and removes, per knot, at least this share of the misfit a
+#: whole-body pose's knot holds in place (:func:`pose_value`): loose, the
+#: real spline layer decides (:func:`staggered_cli.ops.partial.confirmed`).
+PART_VALUE = 0.25
+
+
+def part_roots(motion: BvhMotion) -> dict[str, int]:
+    """Body part (``'@left-arm'``, ...) -> its root joint
+    (:func:`staggered_cli.names.body_part`), for the parts the skeleton has."""
+    sk = motion.skeleton
+    roots = {}
+    for part in joint_names.PARTS:
+        try:
+            roots["@" + part] = joint_names.body_part(part, sk.names, sk.parents)
+        except UsageError:
+            continue
+    return roots
+
+
+def part_joints(motion: BvhMotion) -> dict[str, np.ndarray]:
+    """Body part -> the indices of its joints, as
+    :func:`staggered_cli.model.document.part_of_targets` has them (the
+    subtree of the part's root less the other parts' inside it; never the
+    root joint)."""
+    every = np.arange(motion.skeleton.n_joints)
+    out = {}
+    for part in part_roots(motion):
+        try:
+            out[part] = every[part_of_targets(motion, every, part)]
+        except UsageError:  # a part with no joints of its own
+            continue
+    return out
+
+
+def part_columns(motion: BvhMotion, layout) -> dict[str, np.ndarray]:
+    """Body part -> the columns (in the document's variable order:
+    translations first, then rotations) of the variables it owns
+    (:func:`staggered_cli.model.document.part_of_targets`); ``layout``: the
+    variables' ``(kind, names, targets, ...)``."""
+    targets = np.concatenate([np.asarray(v[2], dtype=int) for v in layout]) if layout else np.zeros(0, int)
+    out = {}
+    for part in part_roots(motion):
+        try:
+            out[part] = np.flatnonzero(part_of_targets(motion, targets, part))
+        except UsageError:
+            continue
+    return out
+
+
+def part_probability(
+    p: np.ndarray, weights: np.ndarray, cols: np.ndarray, filter_width: float, rate: float
+) -> np.ndarray:
+    """``P_part`` (T,): the pose probability over the columns ``cols`` alone."""
+    w = np.asarray(weights, dtype=float)[cols]
+    den = float(w.sum())
+    mean = p[:, cols] @ w / den if den > 0 else np.zeros(p.shape[0])
+    return tent_filter(mean, filter_width, rate)
+
+
+def part_speed(proxy: placement.Proxy, sel: np.ndarray, rate: float, height: float) -> np.ndarray:
+    """(T,) how fast the proxy variables ``sel`` move the body, figure heights
+    a second (the weighted length of each step of their values)."""
+    x = proxy.x[:, sel].astype(float)
+    T = x.shape[0]
+    out = np.zeros(T)
+    if T < 2 or len(sel) == 0:
+        return out
+    step = np.linalg.norm(np.diff(x, axis=0), axis=2) @ proxy.w[sel] * rate / max(height, 1e-12)
+    out[:-1] += 0.5 * step
+    out[1:] += 0.5 * step
+    return out
+
+
+def _neighbours(knots: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per candidate frame (n,) and variable (columns of ``knots (K, m)``,
+    each sorted): the knot before and the knot after."""
+    K = knots.shape[0]
+    a = np.empty((len(f), knots.shape[1]))
+    b = np.empty_like(a)
+    for i in range(knots.shape[1]):
+        j = np.clip(np.searchsorted(knots[:, i], f, side="left"), 1, K - 1)
+        a[:, i] = knots[j - 1, i]
+        b[:, i] = knots[j, i]
+    return a, b
+
+
+def pose_value(proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray) -> float:
+    """The misfit a whole-body pose that a cull would take first holds in
+    place, per knot: the proxy cost its removal adds (the segments around it
+    joined) over its variables, at the :data:`VALUE_PERCENTILE` of the
+    interior poses."""
+    K = len(pose_f)
+    V = len(proxy.cols)
+    if K < 3 or V == 0:
+        return 0.0
+    kn = pose_f[:, None] + refine_f[:, proxy.cols].astype(float)
+    ks = np.arange(1, K - 1)
+    chains = np.stack([kn[ks - 1], kn[ks], kn[ks + 1]], axis=-1)  # (n, V, 3)
+    with_k = placement.span_costs(proxy, chains)
+    without = placement.span_costs(proxy, chains[..., [0, 2]])
+    per = np.sum(without - with_k, axis=1) / V
+    return float(np.percentile(per, VALUE_PERCENTILE))
+
+
+def find_partial(
+    proxy: placement.Proxy,
+    p: np.ndarray,
+    weights: np.ndarray,
+    columns: dict[str, np.ndarray],
+    pose_f: np.ndarray,
+    refine_f: np.ndarray,
+    *,
+    rate: float,
+    height: float,
+    filter_width: float,
+    refine_window: float,
+    significance: float,
+    spacing: int,
+    stride: int,
+) -> list[tuple[str, int]]:
+    """The candidate partial poses (see the module doc), (part, frame), the
+    most misfit removed first: :func:`staggered_cli.ops.partial.confirmed`
+    keeps those that earn their knots in the real spline layer.
+
+    Parameters
+    ----------
+    proxy : the placement proxy of the clip's variables.
+    p, weights : the local evidence (T, V) and its weights (V,).
+    columns : body part -> its variables' columns (:func:`part_columns`).
+    pose_f, refine_f : the whole-body poses' frames (K,) and refinements (K, V) in frames.
+    spacing : ``min_spacing`` in frames; stride: the placement grid, frames.
+    """
+    T = p.shape[0]
+    found: list[tuple[float, str, int]] = []
+    reach = max(int(round(0.5 * filter_width * rate)), 1)
+    gap = max(int(round(PART_SPACING * rate)), 1)
+    value = pose_value(proxy, pose_f, refine_f)
+    where = {int(c): k for k, c in enumerate(proxy.cols)}
+    for part, cols in columns.items():
+        sel = np.array([where[int(c)] for c in cols if int(c) in where], dtype=int)
+        if len(sel) == 0 or T < 3:
+            continue
+        sub = placement.Proxy(proxy.x[:, sel], proxy.w[sel], proxy.cols[sel])
+        P = part_probability(p, weights, cols, filter_width, rate)
+        gate = tent_filter(part_speed(proxy, sel, rate, height), 2.0 * refine_window, rate) >= significance
+        ext = pose_f[:, None] + refine_f[:, sub.cols].astype(float)  # (K, n) the extreme knots
+        edit = np.broadcast_to(pose_f[:, None].astype(float), ext.shape)  # and the editing knots
+        knots = np.sort(np.concatenate([ext, edit]), axis=0)  # (2K, n), a knot twice where unrefined
+        # a frame inside a pose's staggered span (between its editing and its
+        # extreme knot) of a part variable cannot take a knot: the knots keep their order
+        lo, hi = np.minimum(ext, edit), np.maximum(ext, edit)
+        inside = np.zeros(T, dtype=bool)
+        for k, i in zip(*np.nonzero(hi > lo), strict=True):
+            inside[int(lo[k, i]) : int(hi[k, i]) + 1] = True
+        sites = np.zeros(T, dtype=bool)
+        for m in local_maxima(P):
+            if gate[m]:
+                sites[max(m - reach, 1) : min(m + reach, T - 2) + 1] = True
+        grid = np.arange(0, T, stride)
+        grid = grid[sites[grid] & ~inside[grid]]
+        taken: list[int] = []
+        n = len(sel)
+        while len(grid):
+            near = (np.abs(knots[:, None, :] - grid[None, :, None]) <= spacing).any(axis=0)  # (G, n)
+            free = near.astype(float) @ sub.w < COVERED_SHARE * sub.w.sum()
+            for f in taken:
+                free &= np.abs(grid - f) >= gap
+            grid = grid[free]
+            if len(grid) == 0:
+                break
+            a, b = _neighbours(knots, grid.astype(float))
+            old = placement.span_costs(sub, np.stack([a, b], axis=-1)).sum(axis=1)
+            split = np.stack([a, np.broadcast_to(grid[:, None].astype(float), a.shape), b], axis=-1)
+            new = placement.span_costs(sub, split).sum(axis=1)
+            ok = (new <= PART_GAIN * old) & (old - new >= PART_VALUE * value * n)
+            if not ok.any():
+                break
+            best = int(np.argmax(np.where(ok, old - new, -np.inf)))
+            f = int(grid[best])
+            taken.append(f)
+            found.append((float(old[best] - new[best]), part, f))
+            knots = np.sort(np.concatenate([knots, np.full((1, n), float(f))]), axis=0)
+    return [(part, f) for _, part, f in sorted(found, key=lambda g: -g[0])]
