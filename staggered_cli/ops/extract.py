@@ -30,7 +30,17 @@
    worse (issue 34: the curvature of the root's 3-D path peaks where the
    path bends, not where the height turns, and the misfit rule, which asks
    a knot to cut the root's whole misfit to 40 %, kept 34 of 471; a vertical
-   extreme removes the vertical misfit only).  Refinements are whole frames;
+   extreme removes the vertical misfit only).  A limb's rotations (an arm
+   from the collar to the fingers, a leg from the hip, the neck and head:
+   :func:`trails.limb_tops`) take the largest extreme of the limb near the
+   pose (:func:`strongest_frames`), where its end, seen from the limb's top
+   in the torso's frame, turns back (:func:`trails.limb_extremes`: the
+   hand's swing, the foot's step), all of the limb's joints together, kept
+   unless they make the limb's summed misfit worse (issue 34: each arm joint
+   on its own curvature peak, or on its own extreme, fitted its own angle
+   better and the hand worse: staggered within a chain, the joints' errors
+   stop cancelling; the torso's joints, whose counter-rotations cancel the
+   same way, keep the curvature rule).  Refinements are whole frames;
    the "closer to its own pose" rule keeps every variable's knots in order.
    Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
    last pose) stays for ``cull --by paper``.
@@ -154,6 +164,35 @@ def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndar
         take_r = (dr < dl) | ((dr == dl) & (p[right, i] > p[left, i]))
         tau = np.where(take_r, right, left)
         out[1:-1, i] = np.where(ok_l | ok_r, tau - f, 0)
+    return out
+
+
+def strongest_frames(e: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndarray:
+    """Refinements in frames (K, V) onto the strongest extreme near each pose.
+
+    Like :func:`refinement_frames`, but of the frames where ``e`` (T, V) is
+    positive within ``window`` frames of ``f_k`` and strictly closer to it
+    than to its neighbours, the one of largest ``e`` (the largest swing; a
+    tie goes to the nearer, then the earlier); 0 if there is none.
+    """
+    K = len(pose_f)
+    V = e.shape[1]
+    out = np.zeros((K, V), dtype=int)
+    if K < 3:
+        return out
+    f = pose_f[1:-1]
+    lo2 = np.maximum(pose_f[:-2] + f, 2 * (f - window) - 1)
+    hi2 = np.minimum(f + pose_f[2:], 2 * (f + window) + 1)
+    for i in range(V):
+        at = np.flatnonzero(e[:, i] > 0)
+        if len(at) == 0:
+            continue
+        a = np.searchsorted(at, (lo2 + 2) // 2)  # first frame with 2τ > lo2
+        b = np.searchsorted(at, (hi2 + 1) // 2)  # first frame with 2τ >= hi2
+        for k in np.flatnonzero(b > a):
+            c = at[a[k] : b[k]]
+            key = np.lexsort((c, np.abs(c - f[k]), -e[c, i]))
+            out[k + 1, i] = c[key[0]] - f[k]
     return out
 
 
@@ -418,12 +457,38 @@ def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing:
     return out
 
 
+def limb_extremes(
+    motion, variables, ev: trails.LocalEvidence, smoothing: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The own extremes of a BVH clip's limbs: ``(limb, extremes)``, with
+    ``limb`` (n,) the column in ``extremes`` of each of the ``n`` rotation
+    variables (the last ``n`` columns; -1 for the torso's) and ``extremes``
+    (T, L) :func:`trails.limb_extremes` of each limb's top joint (the hand
+    seen from the collar, the foot from the hip); None for a C3D clip."""
+    if not isinstance(motion, BvhMotion):
+        return None
+    found = [(np.asarray(t, dtype=int), dense) for kind, _, t, dense in variables if kind == ROTATION]
+    if not found:
+        return None
+    targets, dense = found[0]
+    tops = trails.limb_tops(motion.skeleton, ev.figure_height)[targets]
+    col = {int(j): c for c, j in enumerate(targets)}
+    used = sorted({int(t) for t in tops if t in col})
+    limb = np.array([used.index(int(t)) if t in col else -1 for t in tops], dtype=int)
+    cols = [col[t] for t in used]
+    extremes = trails.limb_extremes(
+        motion.skeleton, targets, dense, ev.figure_height, ev.rate, ev.breaks, smoothing, which=cols
+    )
+    return limb, extremes
+
+
 def prune_refinements(
     proxy: placement.Proxy,
     pose_f: np.ndarray,
     refine_f: np.ndarray,
     fixed: np.ndarray,
     gain: np.ndarray | float = REFINE_GAIN,
+    groups: np.ndarray | None = None,
 ) -> np.ndarray:
     """Refinements (K, V) that earn their keep.
 
@@ -432,7 +497,9 @@ def prune_refinements(
     the pose time alone does: a knot that only shifts the misfit around
     makes the body's parts miss together, not better.  ``gain`` (a number,
     or one per variable) replaces that share: :data:`EXTREME_GAIN` for a
-    knot on the variable's own extreme.  Variables too small
+    knot on the variable's own extreme.  ``groups`` (V,) joins variables
+    that are judged together, on their summed misfit (a limb's joints).
+    Variables too small
     to be in the proxy lose theirs; ``fixed`` (K, V) ones stay anyway.  Poses
     of one parity are decided together, then the other.
     """
@@ -457,6 +524,14 @@ def prune_refinements(
         lo, hi = np.minimum(here, ext), np.maximum(here, ext)
         with_r = placement.span_costs(proxy, np.stack([left, lo, hi, right], axis=-1))
         without = placement.span_costs(proxy, np.stack([left, here, here, right], axis=-1))
+        if groups is not None:  # a limb's variables are judged together, by their summed misfit
+            g = np.asarray(groups)[cols]
+            _, inv = np.unique(g, return_inverse=True)
+            sw = np.zeros((len(ks), inv.max() + 1))
+            so = np.zeros_like(sw)
+            np.add.at(sw.T, inv, with_r.T)
+            np.add.at(so.T, inv, without.T)
+            with_r, without = sw[:, inv], so[:, inv]
         drop = (with_r > gains * without) & ~fx[ks]
         rc[ks] = np.where(drop, 0, rc[ks])
     r[:, cols] = rc
@@ -579,6 +654,7 @@ def extract(
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
     own = translation_extremes(motion, variables, ev, smoothing)
+    limbs = limb_extremes(motion, variables, ev, smoothing)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
@@ -598,12 +674,21 @@ def extract(
 
     peaks = refinement_frames(ev.p, pose_f, window)
     gain = np.full(len(ev.names), REFINE_GAIN)
+    groups = np.arange(len(ev.names))
     if own is not None:  # translations: their own extremes, kept unless they make the fit worse
         n = own.shape[1]
         peaks[:, :n] = refinement_frames(own, pose_f, window)
         gain[:n] = EXTREME_GAIN
+    if limbs is not None:  # a limb's rotations: the limb's own extremes, its joints together
+        limb, extremes = limbs
+        n = len(limb)
+        on_limb = np.flatnonzero(limb >= 0)
+        col = len(ev.names) - n + on_limb
+        peaks[:, col] = strongest_frames(extremes, pose_f, window)[:, limb[on_limb]]
+        gain[col] = EXTREME_GAIN
+        groups[col] = len(ev.names) + limb[on_limb]
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
-    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain)
+    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain, groups)
     refine = refine_f * float(motion.frame_time)
     del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
