@@ -24,9 +24,11 @@
    ``refine_window`` seconds and strictly closer to ``t_k`` than to the
    neighbouring poses (:func:`refinement_frames`), kept only where they earn
    their keep (:func:`prune_refinements`).  A BVH translation (the root's)
-   takes, by the same rule, its own nearest extreme instead: where one of
-   its coordinates turns back (:func:`trails.coordinate_extremes`: the
-   crouch, the apex, a walk's down and up), kept unless it makes the fit
+   takes, within the same bounds, its own largest extreme instead
+   (:func:`strongest_frames`): where one of its coordinates turns back
+   (:func:`trails.coordinate_extremes`: the crouch, the apex, a walk's down
+   and up; the largest, not the nearest, since the nearest turn was often
+   another axis's small one), kept unless it makes the fit
    worse (issue 34: the curvature of the root's 3-D path peaks where the
    path bends, not where the height turns, and the misfit rule, which asks
    a knot to cut the root's whole misfit to 40 %, kept 34 of 471; a vertical
@@ -677,7 +679,7 @@ def extract(
     groups = np.arange(len(ev.names))
     if own is not None:  # translations: their own extremes, kept unless they make the fit worse
         n = own.shape[1]
-        peaks[:, :n] = refinement_frames(own, pose_f, window)
+        peaks[:, :n] = strongest_frames(own, pose_f, window)
         gain[:n] = EXTREME_GAIN
     if limbs is not None:  # a limb's rotations: the limb's own extremes, its joints together
         limb, extremes = limbs
