@@ -10,10 +10,8 @@
 4. How many poses: one per cluster of coordinated events
    (:func:`pose_count`): the significant local maxima of ``P`` at least
    ``min_spacing`` apart, or the clusters of contact changes if there are
-   more.  The first and last frame, both sides of a one-frame
-   discontinuity (the CMU T-pose), and the middle of every flight phase
-   (:func:`flight_frames`: no contact for :data:`MIN_FLIGHT` seconds or
-   more, a run's or a hop's time in the air) always carry a pose.
+   more.  The first and last frame, and both sides of a one-frame
+   discontinuity (the CMU T-pose), always carry a pose.
 5. Where they go (:func:`optimal_poses`; beyond the paper, whose poses sit
    on the maxima and whose priority ignores the fit): the frames near a
    feature (a peak of the combined evidence, or a contact cluster), chosen
@@ -95,10 +93,6 @@ REFINE_GAIN = 0.4
 #: A translation's refinement onto its own extreme stays unless it makes the
 #: misfit around its pose worse.
 EXTREME_GAIN = 1.0
-#: A flight phase (no contact joint planted, between two contacts) at least
-#: this long, seconds, gets a pose of its own at its middle (issue 34: a
-#: dance's short hops fell between the poses of the take-off and landing).
-MIN_FLIGHT = 0.1
 #: Default fewest seconds between two poses (issue 13), and the most allowed.
 DEFAULT_MIN_SPACING = 0.1
 MAX_MIN_SPACING = 10.0
@@ -383,25 +377,6 @@ def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) 
     return out
 
 
-def flight_frames(constraints, n_frames: int, rate: float) -> np.ndarray:
-    """The middle frame of every flight phase: frames where no contact is
-    planted, at least :data:`MIN_FLIGHT` seconds of them, with a contact
-    before and after (not the clip's start or end, which is no flight)."""
-    if not constraints or n_frames < 3:
-        return np.zeros(0, dtype=int)
-    held = np.zeros(n_frames + 1, dtype=int)
-    for c in constraints:
-        s = min(max(int(round(c.start * rate)), 0), n_frames - 1)
-        e = min(max(int(round(c.end * rate)), s), n_frames - 1)
-        held[s] += 1
-        held[e + 1] -= 1
-    off = np.cumsum(held)[:n_frames] == 0
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], off.astype(int), [0]])))
-    starts, ends = edges[0::2], edges[1::2] - 1  # airborne runs, first and last frame
-    inner = (starts > 0) & (ends < n_frames - 1) & ((ends - starts + 1) / rate >= MIN_FLIGHT - 1e-9)
-    return (starts[inner] + ends[inner]) // 2
-
-
 def chain_variables(motion: BvhMotion | MarkerMotion, names: tuple[str, ...], joint: str) -> np.ndarray:
     """Columns of the variables a contact of ``joint`` concerns: the rotations
     of its leg (the two-bone chain's upper joint down to the joint), or the
@@ -675,8 +650,7 @@ def extract(
     reach = max(int(round(0.5 * filter_width * rate)), 1)
     window = int(np.floor(refine_window * rate + 1e-6))
     breaks = np.flatnonzero(ev.breaks)
-    flights = flight_frames(constraints, T, rate)
-    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1, flights]).clip(0, max(T - 1, 0)))
+    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1]).clip(0, max(T - 1, 0)))
     gate = np.ones(T, dtype=bool)
     if significance > 0:
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
