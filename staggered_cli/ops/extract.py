@@ -459,7 +459,7 @@ def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing:
     return out
 
 
-def limb_extremes(
+def limbs_own_extremes(
     motion, variables, ev: trails.LocalEvidence, smoothing: float
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The own extremes of a BVH clip's limbs: ``(limb, extremes)``, with
@@ -656,7 +656,7 @@ def extract(
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
     own = translation_extremes(motion, variables, ev, smoothing)
-    limbs = limb_extremes(motion, variables, ev, smoothing)
+    limbs = limbs_own_extremes(motion, variables, ev, smoothing)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
