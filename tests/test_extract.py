@@ -19,7 +19,7 @@ from staggered_cli.io.container import document_bytes
 from staggered_cli.io.schema import to_parts
 from staggered_cli.model import sampling
 from staggered_cli.motion import BvhMotion, channels_from_local
-from staggered_cli.ops.extract import extract, refinement_frames, strongest_frames
+from staggered_cli.ops.extract import extract, flight_frames, refinement_frames, strongest_frames
 from staggered_cli.signals import probability, smoothing, trails
 
 from .conftest import BVH_FILES, C3D_FILES, cli_extract, dev_document, dev_motion, mocap
@@ -367,6 +367,30 @@ def test_limb_extremes_are_where_the_hand_turns_back():
     big = at[e[at, 0] > 0.5 * e[:, 0].max()]
     np.testing.assert_array_equal(big, [15, 45, 75])
     assert set(at) - set(big) <= {29, 30, 31, 59, 60, 61}
+
+
+def test_flight_frames_are_the_middles_of_the_times_in_the_air():
+    from staggered_cli.contacts.constraint import Constraint
+
+    rate = 30.0
+    cons = [
+        Constraint("L", 0.0, 1.0),  # frames 0-30
+        Constraint("R", 0.5, 1.5),  # 15-45: no flight between L and R
+        Constraint("L", 2.0, 2.5),  # 60-75: off 46-59 (14 frames), middle 52
+        Constraint("R", 2.6, 3.0),  # 78-90: off 76-77, 2 frames (0.067 s): too short
+        Constraint("L", 3.2, 3.3),  # 96-99: off 91-95, 5 frames (0.167 s): middle 93
+    ]
+    np.testing.assert_array_equal(flight_frames(cons, 120, rate), [52, 93])  # 100-119: the clip's end, no flight
+    assert len(flight_frames([], 120, rate)) == 0
+    # with the figure's centre: a body that falls at 1 g flies, one that
+    # stays up (on its hands: no contact joint planted) does not
+    t = np.arange(120) / rate
+    g = 9.81 / 1.75
+    center = np.full(120, 0.55)
+    center[45:61] = 0.55 + 0.5 * g * (t[45:61] - t[45]) * (t[60] - t[45:61])  # frames 45-60: a throw
+    np.testing.assert_array_equal(flight_frames(cons, 120, rate, center), [52])
+    center[45:61] = 0.55 + 0.1 * g * (t[45:61] - t[45]) * (t[60] - t[45:61])  # 0.2 g: held up
+    assert len(flight_frames(cons, 120, rate, center)) == 0
 
 
 def test_laplacian_smoothing_does_not_depend_on_the_memory_layout():

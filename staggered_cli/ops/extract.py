@@ -10,8 +10,11 @@
 4. How many poses: one per cluster of coordinated events
    (:func:`pose_count`): the significant local maxima of ``P`` at least
    ``min_spacing`` apart, or the clusters of contact changes if there are
-   more.  The first and last frame, and both sides of a one-frame
-   discontinuity (the CMU T-pose), always carry a pose.
+   more.  The first and last frame, both sides of a one-frame
+   discontinuity (the CMU T-pose), and the middle of every flight phase
+   (:func:`flight_frames`: no contact for :data:`MIN_FLIGHT` seconds or
+   more while the figure's centre falls as a thrown body does, a hop's or
+   a jump's time in the air) always carry a pose.
 5. Where they go (:func:`optimal_poses`; beyond the paper, whose poses sit
    on the maxima and whose priority ignores the fit): the frames near a
    feature (a peak of the combined evidence, or a contact cluster), chosen
@@ -93,6 +96,10 @@ REFINE_GAIN = 0.4
 #: A translation's refinement onto its own extreme stays unless it makes the
 #: misfit around its pose worse.
 EXTREME_GAIN = 1.0
+#: A flight phase (no contact joint planted, between two contacts) at least
+#: this long, seconds, gets a pose of its own at its middle (issue 34: a
+#: dance's short hops fell between the poses of the take-off and landing).
+MIN_FLIGHT = 0.1
 #: Default fewest seconds between two poses (issue 13), and the most allowed.
 DEFAULT_MIN_SPACING = 0.1
 MAX_MIN_SPACING = 10.0
@@ -377,6 +384,59 @@ def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) 
     return out
 
 
+#: A flight's body falls: the height of the figure's centre accelerates
+#: downward by at least this share of gravity over it (a 1.75 m figure: 9.81
+#: m/s² is 5.6 figure heights/s²).  Without a contact joint planted a body
+#: may still rest on its hands or its back (a breakdance: its centre hardly
+#: accelerates); a hop's, a jump's and a run's centre falls at about 1 g.
+BALLISTIC = 0.5
+_GRAVITY = 9.81 / 1.75
+
+
+def center_height(motion: BvhMotion | MarkerMotion) -> np.ndarray:
+    """(T,) the height of the mean of the figure's joints or seen markers, in
+    figure heights (BVH: from its world positions, so before they are released)."""
+    height = float(motion.figure_height())
+    pts = motion.world_positions() if isinstance(motion, BvhMotion) else motion.points
+    up = contact_detection.up_direction(pts, height)
+    out = np.zeros(pts.shape[0])
+    step = max(1, (1 << 16) // max(pts.shape[1], 1))
+    for lo in range(0, pts.shape[0], step):
+        h = pts[lo : lo + step] @ up  # (n, J)
+        seen = np.isfinite(h)
+        out[lo : lo + step] = np.where(seen, h, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)
+    return out / height if height > 0 else out
+
+
+def flight_frames(constraints, n_frames: int, rate: float, center: np.ndarray | None = None) -> np.ndarray:
+    """The middle frame of every flight phase: frames where no contact is
+    planted, at least :data:`MIN_FLIGHT` seconds of them, with a contact
+    before and after (not the clip's start or end, which is no flight), over
+    which the figure's ``center`` height (figure heights, :func:`center_height`)
+    falls as a thrown body does: the parabola fitted to it (a frame before
+    and after included) accelerates down by :data:`BALLISTIC` g or more."""
+    if not constraints or n_frames < 3:
+        return np.zeros(0, dtype=int)
+    held = np.zeros(n_frames + 1, dtype=int)
+    for c in constraints:
+        s = min(max(int(round(c.start * rate)), 0), n_frames - 1)
+        e = min(max(int(round(c.end * rate)), s), n_frames - 1)
+        held[s] += 1
+        held[e + 1] -= 1
+    off = np.cumsum(held)[:n_frames] == 0
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], off.astype(int), [0]])))
+    starts, ends = edges[0::2], edges[1::2] - 1  # airborne runs, first and last frame
+    inner = (starts > 0) & (ends < n_frames - 1) & ((ends - starts + 1) / rate >= MIN_FLIGHT - 1e-9)
+    starts, ends = starts[inner], ends[inner]
+    if center is not None:
+        falls = np.zeros(len(starts), dtype=bool)
+        for n, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+            t = np.arange(a - 1, b + 2) / rate
+            falls[n] = 2.0 * np.polyfit(t - t.mean(), center[a - 1 : b + 2], 2)[0] <= -BALLISTIC * _GRAVITY
+        starts, ends = starts[falls], ends[falls]
+    return (starts + ends) // 2
+
+
 def chain_variables(motion: BvhMotion | MarkerMotion, names: tuple[str, ...], joint: str) -> np.ndarray:
     """Columns of the variables a contact of ``joint`` concerns: the rotations
     of its leg (the two-bone chain's upper joint down to the joint), or the
@@ -635,6 +695,7 @@ def extract(
     )
     if contact_joints is not None:  # the user's choice: say which of them never rest
         contact_detection.warn_never_rested(joints, constraints, min_duration=min_contact, tolerance=contact_tolerance)
+    center = center_height(motion) if constraints else None
     variables = dense_variables(motion)
     weights = placement.variable_weights(motion, variables)
     if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
@@ -650,7 +711,8 @@ def extract(
     reach = max(int(round(0.5 * filter_width * rate)), 1)
     window = int(np.floor(refine_window * rate + 1e-6))
     breaks = np.flatnonzero(ev.breaks)
-    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1]).clip(0, max(T - 1, 0)))
+    flights = flight_frames(constraints, T, rate, center)
+    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1, flights]).clip(0, max(T - 1, 0)))
     gate = np.ones(T, dtype=bool)
     if significance > 0:
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
