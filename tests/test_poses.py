@@ -61,15 +61,16 @@ def _ratios(keep: str | None) -> dict[str, float]:
 @pytest.mark.parametrize("keep", [None, "25%"])
 def test_the_sparse_layer_is_at_least_as_good_as_even_spacing(keep):
     """Geometric mean of extracted / even <= 0.85 over the dev BVH files, no
-    file above 1.15, at the candidate count and after cull --keep 25%
-    (measured 0.793 and 1.107 (bandai2_run), 0.841 and 1.000; before the
-    root's knots went on its own extremes, issue 34: 0.825 and 1.234)."""
+    file above 1.11, at the candidate count and after cull --keep 25%
+    (measured 0.780 and 1.100 (bandai2_run), 0.782 and 1.000; before the
+    limbs' knots went on their own extremes 0.793 and 1.107, 0.841; before
+    the root's, issue 34: 0.825 and 1.234)."""
     if len(BVH_FILES) < 10:
         pytest.skip("needs the 10 dev BVH files")
     r = _ratios(keep)
     gm = float(np.exp(np.mean(np.log(list(r.values())))))
     assert gm <= 0.85, (gm, r)
-    assert max(r.values()) <= 1.15, r
+    assert max(r.values()) <= 1.11, r
 
 
 def test_refinements_earn_their_keep():

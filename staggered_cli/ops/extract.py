@@ -10,8 +10,11 @@
 4. How many poses: one per cluster of coordinated events
    (:func:`pose_count`): the significant local maxima of ``P`` at least
    ``min_spacing`` apart, or the clusters of contact changes if there are
-   more.  The first and last frame, and both sides of a one-frame
-   discontinuity (the CMU T-pose), always carry a pose.
+   more.  The first and last frame, both sides of a one-frame
+   discontinuity (the CMU T-pose), and the middle of every flight phase
+   (:func:`flight_frames`: no contact for :data:`MIN_FLIGHT` seconds or
+   more while the figure's centre falls as a thrown body does, a hop's or
+   a jump's time in the air) always carry a pose.
 5. Where they go (:func:`optimal_poses`; beyond the paper, whose poses sit
    on the maxima and whose priority ignores the fit): the frames near a
    feature (a peak of the combined evidence, or a contact cluster), chosen
@@ -24,13 +27,25 @@
    ``refine_window`` seconds and strictly closer to ``t_k`` than to the
    neighbouring poses (:func:`refinement_frames`), kept only where they earn
    their keep (:func:`prune_refinements`).  A BVH translation (the root's)
-   takes, by the same rule, its own nearest extreme instead: where one of
-   its coordinates turns back (:func:`trails.coordinate_extremes`: the
-   crouch, the apex, a walk's down and up), kept unless it makes the fit
+   takes, within the same bounds, its own largest extreme instead
+   (:func:`strongest_frames`): where one of its coordinates turns back
+   (:func:`trails.coordinate_extremes`: the crouch, the apex, a walk's down
+   and up; the largest, not the nearest, since the nearest turn was often
+   another axis's small one), kept unless it makes the fit
    worse (issue 34: the curvature of the root's 3-D path peaks where the
    path bends, not where the height turns, and the misfit rule, which asks
    a knot to cut the root's whole misfit to 40 %, kept 34 of 471; a vertical
-   extreme removes the vertical misfit only).  Refinements are whole frames;
+   extreme removes the vertical misfit only).  A limb's rotations (an arm
+   from the collar to the fingers, a leg from the hip, the neck and head:
+   :func:`trails.limb_tops`) take the largest extreme of the limb near the
+   pose (:func:`strongest_frames`), where its end, seen from the limb's top
+   in the torso's frame, turns back (:func:`trails.limb_extremes`: the
+   hand's swing, the foot's step), all of the limb's joints together, kept
+   unless they make the limb's summed misfit worse (issue 34: each arm joint
+   on its own curvature peak, or on its own extreme, fitted its own angle
+   better and the hand worse: staggered within a chain, the joints' errors
+   stop cancelling; the torso's joints, whose counter-rotations cancel the
+   same way, keep the curvature rule).  Refinements are whole frames;
    the "closer to its own pose" rule keeps every variable's knots in order.
    Priority ``w_k = P(t_k)(t_{k+1} - t_{k-1})`` (infinite for the first and
    last pose) stays for ``cull --by paper``.
@@ -83,6 +98,10 @@ REFINE_GAIN = 0.4
 #: A translation's refinement onto its own extreme stays unless it makes the
 #: misfit around its pose worse.
 EXTREME_GAIN = 1.0
+#: A flight phase (no contact joint planted, between two contacts) at least
+#: this long, seconds, gets a pose of its own at its middle (issue 34: a
+#: dance's short hops fell between the poses of the take-off and landing).
+MIN_FLIGHT = 0.1
 #: Default fewest seconds between two poses (issue 13), and the most allowed.
 DEFAULT_MIN_SPACING = 0.1
 MAX_MIN_SPACING = 10.0
@@ -156,6 +175,35 @@ def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndar
         take_r = (dr < dl) | ((dr == dl) & (p[right, i] > p[left, i]))
         tau = np.where(take_r, right, left)
         out[1:-1, i] = np.where(ok_l | ok_r, tau - f, 0)
+    return out
+
+
+def strongest_frames(e: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndarray:
+    """Refinements in frames (K, V) onto the strongest extreme near each pose.
+
+    Like :func:`refinement_frames`, but of the frames where ``e`` (T, V) is
+    positive within ``window`` frames of ``f_k`` and strictly closer to it
+    than to its neighbours, the one of largest ``e`` (the largest swing; a
+    tie goes to the nearer, then the earlier); 0 if there is none.
+    """
+    K = len(pose_f)
+    V = e.shape[1]
+    out = np.zeros((K, V), dtype=int)
+    if K < 3:
+        return out
+    f = pose_f[1:-1]
+    lo2 = np.maximum(pose_f[:-2] + f, 2 * (f - window) - 1)
+    hi2 = np.minimum(f + pose_f[2:], 2 * (f + window) + 1)
+    for i in range(V):
+        at = np.flatnonzero(e[:, i] > 0)
+        if len(at) == 0:
+            continue
+        a = np.searchsorted(at, (lo2 + 2) // 2)  # first frame with 2τ > lo2
+        b = np.searchsorted(at, (hi2 + 1) // 2)  # first frame with 2τ >= hi2
+        for k in np.flatnonzero(b > a):
+            c = at[a[k] : b[k]]
+            key = np.lexsort((c, np.abs(c - f[k]), -e[c, i]))
+            out[k + 1, i] = c[key[0]] - f[k]
     return out
 
 
@@ -338,6 +386,59 @@ def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) 
     return out
 
 
+#: A flight's body falls: the height of the figure's centre accelerates
+#: downward by at least this share of gravity over it (a 1.75 m figure: 9.81
+#: m/s² is 5.6 figure heights/s²).  Without a contact joint planted a body
+#: may still rest on its hands or its back (a breakdance: its centre hardly
+#: accelerates); a hop's, a jump's and a run's centre falls at about 1 g.
+BALLISTIC = 0.5
+_GRAVITY = 9.81 / 1.75
+
+
+def center_height(motion: BvhMotion | MarkerMotion) -> np.ndarray:
+    """(T,) the height of the mean of the figure's joints or seen markers, in
+    figure heights (BVH: from its world positions, so before they are released)."""
+    height = float(motion.figure_height())
+    pts = motion.world_positions() if isinstance(motion, BvhMotion) else motion.points
+    up = contact_detection.up_direction(pts, height)
+    out = np.zeros(pts.shape[0])
+    step = max(1, (1 << 16) // max(pts.shape[1], 1))
+    for lo in range(0, pts.shape[0], step):
+        h = pts[lo : lo + step] @ up  # (n, J)
+        seen = np.isfinite(h)
+        out[lo : lo + step] = np.where(seen, h, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)
+    return out / height if height > 0 else out
+
+
+def flight_frames(constraints, n_frames: int, rate: float, center: np.ndarray | None = None) -> np.ndarray:
+    """The middle frame of every flight phase: frames where no contact is
+    planted, at least :data:`MIN_FLIGHT` seconds of them, with a contact
+    before and after (not the clip's start or end, which is no flight), over
+    which the figure's ``center`` height (figure heights, :func:`center_height`)
+    falls as a thrown body does: the parabola fitted to it (a frame before
+    and after included) accelerates down by :data:`BALLISTIC` g or more."""
+    if not constraints or n_frames < 3:
+        return np.zeros(0, dtype=int)
+    held = np.zeros(n_frames + 1, dtype=int)
+    for c in constraints:
+        s = min(max(int(round(c.start * rate)), 0), n_frames - 1)
+        e = min(max(int(round(c.end * rate)), s), n_frames - 1)
+        held[s] += 1
+        held[e + 1] -= 1
+    off = np.cumsum(held)[:n_frames] == 0
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], off.astype(int), [0]])))
+    starts, ends = edges[0::2], edges[1::2] - 1  # airborne runs, first and last frame
+    inner = (starts > 0) & (ends < n_frames - 1) & ((ends - starts + 1) / rate >= MIN_FLIGHT - 1e-9)
+    starts, ends = starts[inner], ends[inner]
+    if center is not None:
+        falls = np.zeros(len(starts), dtype=bool)
+        for n, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+            t = np.arange(a - 1, b + 2) / rate
+            falls[n] = 2.0 * np.polyfit(t - t.mean(), center[a - 1 : b + 2], 2)[0] <= -BALLISTIC * _GRAVITY
+        starts, ends = starts[falls], ends[falls]
+    return (starts + ends) // 2
+
+
 def chain_variables(motion: BvhMotion | MarkerMotion, names: tuple[str, ...], joint: str) -> np.ndarray:
     """Columns of the variables a contact of ``joint`` concerns: the rotations
     of its leg (the two-bone chain's upper joint down to the joint), or the
@@ -420,12 +521,38 @@ def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing:
     return out
 
 
+def limbs_own_extremes(
+    motion, variables, ev: trails.LocalEvidence, smoothing: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The own extremes of a BVH clip's limbs: ``(limb, extremes)``, with
+    ``limb`` (n,) the column in ``extremes`` of each of the ``n`` rotation
+    variables (the last ``n`` columns; -1 for the torso's) and ``extremes``
+    (T, L) :func:`trails.limb_extremes` of each limb's top joint (the hand
+    seen from the collar, the foot from the hip); None for a C3D clip."""
+    if not isinstance(motion, BvhMotion):
+        return None
+    found = [(np.asarray(t, dtype=int), dense) for kind, _, t, dense in variables if kind == ROTATION]
+    if not found:
+        return None
+    targets, dense = found[0]
+    tops = trails.limb_tops(motion.skeleton, ev.figure_height)[targets]
+    col = {int(j): c for c, j in enumerate(targets)}
+    used = sorted({int(t) for t in tops if t in col})
+    limb = np.array([used.index(int(t)) if t in col else -1 for t in tops], dtype=int)
+    cols = [col[t] for t in used]
+    extremes = trails.limb_extremes(
+        motion.skeleton, targets, dense, ev.figure_height, ev.rate, ev.breaks, smoothing, which=cols
+    )
+    return limb, extremes
+
+
 def prune_refinements(
     proxy: placement.Proxy,
     pose_f: np.ndarray,
     refine_f: np.ndarray,
     fixed: np.ndarray,
     gain: np.ndarray | float = REFINE_GAIN,
+    groups: np.ndarray | None = None,
 ) -> np.ndarray:
     """Refinements (K, V) that earn their keep.
 
@@ -434,7 +561,9 @@ def prune_refinements(
     the pose time alone does: a knot that only shifts the misfit around
     makes the body's parts miss together, not better.  ``gain`` (a number,
     or one per variable) replaces that share: :data:`EXTREME_GAIN` for a
-    knot on the variable's own extreme.  Variables too small
+    knot on the variable's own extreme.  ``groups`` (V,) joins variables
+    that are judged together, on their summed misfit (a limb's joints).
+    Variables too small
     to be in the proxy lose theirs; ``fixed`` (K, V) ones stay anyway.  Poses
     of one parity are decided together, then the other.
     """
@@ -459,6 +588,14 @@ def prune_refinements(
         lo, hi = np.minimum(here, ext), np.maximum(here, ext)
         with_r = placement.span_costs(proxy, np.stack([left, lo, hi, right], axis=-1))
         without = placement.span_costs(proxy, np.stack([left, here, here, right], axis=-1))
+        if groups is not None:  # a limb's variables are judged together, by their summed misfit
+            g = np.asarray(groups)[cols]
+            _, inv = np.unique(g, return_inverse=True)
+            sw = np.zeros((len(ks), inv.max() + 1))
+            so = np.zeros_like(sw)
+            np.add.at(sw.T, inv, with_r.T)
+            np.add.at(so.T, inv, without.T)
+            with_r, without = sw[:, inv], so[:, inv]
         drop = (with_r > gains * without) & ~fx[ks]
         rc[ks] = np.where(drop, 0, rc[ks])
     r[:, cols] = rc
@@ -566,6 +703,7 @@ def extract(
     )
     if contact_joints is not None:  # the user's choice: say which of them never rest
         contact_detection.warn_never_rested(joints, constraints, min_duration=min_contact, tolerance=contact_tolerance)
+    center = center_height(motion) if constraints else None
     variables = dense_variables(motion)
     weights = placement.variable_weights(motion, variables)
     if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
@@ -581,12 +719,14 @@ def extract(
     reach = max(int(round(0.5 * filter_width * rate)), 1)
     window = int(np.floor(refine_window * rate + 1e-6))
     breaks = np.flatnonzero(ev.breaks)
-    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1]).clip(0, max(T - 1, 0)))
+    flights = flight_frames(constraints, T, rate, center)
+    forced = np.unique(np.concatenate([[0, T - 1], breaks, breaks + 1, flights]).clip(0, max(T - 1, 0)))
     gate = np.ones(T, dtype=bool)
     if significance > 0:
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
     own = translation_extremes(motion, variables, ev, smoothing)
+    limbs = limbs_own_extremes(motion, variables, ev, smoothing)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
@@ -606,12 +746,21 @@ def extract(
 
     peaks = refinement_frames(ev.p, pose_f, window)
     gain = np.full(len(ev.names), REFINE_GAIN)
+    groups = np.arange(len(ev.names))
     if own is not None:  # translations: their own extremes, kept unless they make the fit worse
         n = own.shape[1]
-        peaks[:, :n] = refinement_frames(own, pose_f, window)
+        peaks[:, :n] = strongest_frames(own, pose_f, window)
         gain[:n] = EXTREME_GAIN
+    if limbs is not None:  # a limb's rotations: the limb's own extremes, its joints together
+        limb, extremes = limbs
+        n = len(limb)
+        on_limb = np.flatnonzero(limb >= 0)
+        col = len(ev.names) - n + on_limb
+        peaks[:, col] = strongest_frames(extremes, pose_f, window)[:, limb[on_limb]]
+        gain[col] = EXTREME_GAIN
+        groups[col] = len(ev.names) + limb[on_limb]
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
-    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain)
+    refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain, groups)
     refine = refine_f * float(motion.frame_time)
     candidates = []
     if partial:

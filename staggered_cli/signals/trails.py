@@ -475,3 +475,119 @@ def local_evidence(motion: BvhMotion | MarkerMotion, smoothing: float | None = N
         speed = speed / height
     p = laplacian_smooth(kappa, smoothing, rate, breaks)
     return LocalEvidence(names, p, weights, speed, breaks, rate, float(height))
+
+
+def _limb_chains(sk: Skeleton, j: int) -> list[tuple[list[int], np.ndarray]]:
+    """The limbs of joint ``j`` followed to their ends: per tip of ``j``
+    (child joint or End Site), the joints of the chain below ``j`` and the
+    offset of its end in the last joint's frame.  A chain goes on while its
+    joint has exactly one tip (an arm from the shoulder to the hand, a leg
+    to the toe) and ends at a joint that branches (the hand, at its
+    fingers) or at an End Site."""
+    kids = [int(c) for c in sk.children(j)]
+    ends = [o for p, o in zip(sk.end_parents, sk.end_offsets, strict=True) if p == j]
+    out: list[tuple[list[int], np.ndarray]] = [([], np.asarray(o, dtype=float)) for o in ends]
+    for c in kids:
+        chain = [c]
+        while True:
+            nxt = [int(g) for g in sk.children(chain[-1])]
+            tips = [o for p, o in zip(sk.end_parents, sk.end_offsets, strict=True) if p == chain[-1]]
+            if len(nxt) + len(tips) != 1:
+                out.append((chain, np.zeros(3)))
+                break
+            if tips:
+                out.append((chain, np.asarray(tips[0], dtype=float)))
+                break
+            chain.append(nxt[0])
+    return out
+
+
+def limb_extremes(
+    sk: Skeleton,
+    targets: np.ndarray,
+    rot: np.ndarray,
+    height: float,
+    rate: float,
+    breaks: np.ndarray | None = None,
+    smoothing: float | None = None,
+    which: np.ndarray | None = None,
+) -> np.ndarray:
+    """Where rotation variables' limbs turn back: their own extremes.
+
+    Parameters
+    ----------
+    sk : the skeleton.
+    targets : (V,) the joint each rotation variable turns.
+    rot : (T, V, 4) the variables' local rotations.
+    height, rate, breaks, smoothing : as for :func:`coordinate_extremes`.
+    which : the variables (columns of ``rot``) to measure; default all.
+
+    Returns
+    -------
+    (T, len(which)): for each variable, the :func:`coordinate_extremes` of the ends
+    of its limbs relative to its joint, in the frame of the joint's parent
+    (the hand seen from the shoulder in the body's frame: an arm's swing
+    turns back where the hand does; the foot from the hip; a spine joint's
+    limb ends where the body branches), the largest over its limbs.  The
+    chain's own joints turn it too (the elbow bends the swing), so the
+    extreme is the limb's, as an animator sees it, not the one joint's.
+    """
+    T, V = rot.shape[:2]
+    which = np.arange(V) if which is None else np.asarray(which, dtype=int)
+    out = np.zeros((T, len(which)))
+    if T < 3 or V == 0:
+        return out
+    targets = np.asarray(targets, dtype=int)
+    col = {int(j): n for n, j in enumerate(targets)}
+    for i, n in enumerate(which):
+        j = targets[n]
+        trails = []
+        for chain, end in _limb_chains(sk, int(j)):
+            p = np.broadcast_to(end, (T, 3))
+            for c in reversed(chain):  # the end in c's parent's frame, up to j's frame
+                if c in col:
+                    p = quat.mul_vec(rot[:, col[c]], p)
+                p = p + sk.offsets[c]
+            trails.append(quat.mul_vec(rot[:, n], p))
+        if trails:
+            out[:, i] = coordinate_extremes(np.stack(trails, axis=1), height, rate, breaks, smoothing).max(axis=1)
+    return out
+
+
+#: A joint branches into limbs when two or more of its tips lead to chains
+#: at least this long (figure heights): the pelvis to both legs and the
+#: spine, the chest to the arms and the neck; a hand's fingers are shorter.
+LIMB_BRANCH = 0.1
+
+
+def limb_tops(sk: Skeleton, height: float) -> np.ndarray:
+    """(J,) int: for each joint of a limb, the limb's top joint; -1 for the
+    torso.  A limb is what hangs below the torso without branching into
+    limbs again (an arm from the collar down, a leg from the hip, the neck
+    and head); the torso is every joint at or above a joint that branches
+    into two or more chains of at least :data:`LIMB_BRANCH` of the figure
+    height (the pelvis, the spine up to the chest).  A hand's fingers are
+    shorter: the hand is the arm's."""
+    J = sk.n_joints
+    reach = np.zeros(J)  # the farthest rest point below each joint
+    branches = np.zeros(J, dtype=int)
+    for e, o in zip(sk.end_parents, sk.end_offsets, strict=True):
+        length = float(np.linalg.norm(o))
+        reach[e] = max(reach[e], length)
+        branches[e] += length >= LIMB_BRANCH * height
+    torso = np.zeros(J, dtype=bool)
+    for c in range(J - 1, -1, -1):  # parents come before children
+        torso[c] |= branches[c] >= 2
+        p = int(sk.parents[c])
+        if p < 0:
+            continue
+        length = float(np.linalg.norm(sk.offsets[c])) + reach[c]
+        reach[p] = max(reach[p], length)
+        branches[p] += length >= LIMB_BRANCH * height
+        torso[p] |= torso[c]
+    top = np.full(J, -1)
+    for j in range(J):
+        if not torso[j]:
+            p = int(sk.parents[j])
+            top[j] = j if p < 0 or torso[p] else top[p]
+    return top
