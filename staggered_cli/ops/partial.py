@@ -34,14 +34,19 @@ def partial_times(doc: Document) -> dict[str, np.ndarray]:
     return {p: np.array(ts) for p, ts in out.items()}
 
 
-def _error(doc: Document, frames: np.ndarray) -> float:
-    """Over ``frames``, summed over joints and frames, the distance (file
-    units) of the spline layer's joints from the source's, divided by the
-    clip's frame count: the part of ``bake --layers splines``'s mean error
-    (times the joint count) those frames hold."""
+def _errors(doc: Document, frames: np.ndarray) -> np.ndarray:
+    """(n, J) over ``frames`` (n,), the distance (file units) of each joint
+    of the spline layer from the source's, divided by the clip's frame count:
+    their sum is the part of ``bake --layers splines``'s mean error (times
+    the joint count) those frames hold."""
     rot, tr = local_pose(doc, frames * doc.frame_time, "splines")
     pos = forward_kinematics(doc.source.skeleton, rot, tr)[1]
-    return float(np.sum(np.linalg.norm(pos - doc.source.world_positions()[frames], axis=-1)) / doc.n_frames)
+    return np.linalg.norm(pos - doc.source.world_positions()[frames], axis=-1) / doc.n_frames
+
+
+def _error(doc: Document, frames: np.ndarray) -> float:
+    """The sum of :func:`_errors`."""
+    return float(np.sum(_errors(doc, frames)))
 
 
 def _knot_count(doc: Document) -> int:
@@ -79,20 +84,24 @@ def confirmed(doc: Document, candidates: list[tuple[str, int]]) -> Document:
         return doc
     every = np.arange(doc.n_frames)
     fewer = cull.keep_poses(doc, cull.choose(doc, keep=str(doc.n_poses - 1)))
-    value = max(_error(fewer, every) - _error(doc, every), 0.0) / max(_knot_count(doc) - _knot_count(fewer), 1)
+    now = _errors(doc, every)  # (T, J), kept up to date as poses are added
+    value = max(_error(fewer, every) - float(np.sum(now)), 0.0) / max(_knot_count(doc) - _knot_count(fewer), 1)
     if value <= 0.0:
         return doc
+    masks = {part: doc.part_mask(part) for part, _ in candidates}
     for part, frame in candidates:
         t = float(frame) * doc.frame_time
+        lo, hi = _span(doc, masks[part], t)
+        frames = every[int(np.floor(lo / doc.frame_time)) : int(np.ceil(hi / doc.frame_time)) + 1]
         with warnings.catch_warnings():  # a refinement of the part in the way: the candidate is not taken
             warnings.simplefilter("error", StaggeredWarning)
             try:
                 trial = cull.add_poses(doc, [t], part)
             except (UsageError, StaggeredWarning):
                 continue
-        lo, hi = _span(doc, doc.part_mask(part), t)
-        frames = every[int(np.floor(lo / doc.frame_time)) : int(np.ceil(hi / doc.frame_time)) + 1]
-        gain = _error(doc, frames) - _error(trial, frames)
+        after = _errors(trial, frames)
+        gain = float(np.sum(now[frames])) - float(np.sum(after))
         if gain >= WORLD_VALUE * value * (_knot_count(trial) - _knot_count(doc)):
             doc = trial
+            now[frames] = after
     return doc

@@ -193,7 +193,9 @@ def find_partial(
     T = p.shape[0]
     found: list[tuple[float, str, int]] = []
     reach = max(int(round(0.5 * filter_width * rate)), 1)
-    gap = max(int(round(PART_SPACING * rate)), 1)
+    # strictly more than PART_SPACING in frames: a clip's rate and its frame
+    # time may disagree in the last digits (120 Hz and 0.008333 s)
+    gap = int(np.floor(PART_SPACING * rate)) + 1
     value = pose_value(proxy, pose_f, refine_f)
     where = {int(c): k for k, c in enumerate(proxy.cols)}
     for part, cols in columns.items():
