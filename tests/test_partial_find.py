@@ -112,8 +112,9 @@ def test_the_arms_get_poses_at_their_own_features_the_whole_body_poses_miss():
             miss = part_events.missed(t, _arm_knots(whole, hand))
             missed += len(miss)
             hit += int(part_events.hit(miss, found.get(part, np.zeros(0))).sum())
-    # measured 4 of 5 (issue 37: at least 80 %); arm poses anywhere else would hit none
-    assert missed >= 4
+    # measured 4 of 5 before the limbs' extreme knots; since then the whole-body
+    # poses' refined arm knots reach all but 1 (issue 37: at least 80 %)
+    assert missed >= 1
     assert hit >= 0.8 * missed, (hit, missed)
 
 
@@ -124,9 +125,10 @@ def test_at_equal_knots_the_spline_layer_is_better_with_partial_poses():
         ratio, (n_whole, n_parts) = partial_knots.equal_knots_ratio(whole, parts)
         assert n_parts <= n_whole
         ratios.append(ratio)
-    # measured 0.982, 1.002, 0.926: geometric mean 0.970 (issue 37 asks 0.9: not met)
-    assert np.exp(np.mean(np.log(ratios))) <= 0.98, ratios
-    assert max(ratios) <= 1.01, ratios
+    # measured 0.991, 0.987, 0.974: geometric mean 0.984 (0.970 before the limbs'
+    # extreme knots took most of the arms' error; issue 37 asks 0.9: not met)
+    assert np.exp(np.mean(np.log(ratios))) <= 0.99, ratios
+    assert max(ratios) <= 1.0, ratios
 
 
 @pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu_05_06_modern_dance.bvh"])
