@@ -137,6 +137,16 @@ def _check(name: str, value: float, *, positive: bool = False, upper: float | No
     return value + 0.0  # -0.0 -> 0.0
 
 
+def _open_windows(pose_f: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """For each inner pose, the open interval ``lo2 < 2τ < hi2`` an extreme
+    ``τ`` must lie in: within ``window`` frames of its pose and strictly
+    closer to it than to its neighbours (doubled to stay in integers)."""
+    f = pose_f[1:-1]
+    lo2 = np.maximum(pose_f[:-2] + f, 2 * (f - window) - 1)
+    hi2 = np.minimum(f + pose_f[2:], 2 * (f + window) + 1)
+    return lo2, hi2
+
+
 def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndarray:
     """Refinements in frames (K, V) from local evidence peaks.
 
@@ -158,9 +168,7 @@ def refinement_frames(p: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndar
     if K < 3:
         return out
     f = pose_f[1:-1]
-    # the open interval a peak must lie in, doubled to stay in integers
-    lo2 = np.maximum(pose_f[:-2] + f, 2 * (f - window) - 1)  # 2τ > lo2
-    hi2 = np.minimum(f + pose_f[2:], 2 * (f + window) + 1)  # 2τ < hi2
+    lo2, hi2 = _open_windows(pose_f, window)
     for i in range(V):
         peaks = probability.local_maxima(p[:, i])
         if len(peaks) == 0:
@@ -192,8 +200,7 @@ def strongest_frames(e: np.ndarray, pose_f: np.ndarray, window: int) -> np.ndarr
     if K < 3:
         return out
     f = pose_f[1:-1]
-    lo2 = np.maximum(pose_f[:-2] + f, 2 * (f - window) - 1)
-    hi2 = np.minimum(f + pose_f[2:], 2 * (f + window) + 1)
+    lo2, hi2 = _open_windows(pose_f, window)
     for i in range(V):
         at = np.flatnonzero(e[:, i] > 0)
         if len(at) == 0:

@@ -246,11 +246,12 @@ def _contact_rows(doc: Document, lo: float, hi: float) -> dict[str, list[tuple[f
     return rows
 
 
-def _bands(ax, doc: Document, rows: list[_Var]) -> None:
-    """Shade every other limb (a chain of joints below a joint with several
-    children) so that a succession down one limb reads as one block."""
+def limb_shades(doc: Document, rows: list[_Var]) -> list[bool]:
+    """Whether each row is shaded: every other limb (a chain of joints below
+    a joint with several children), so that a succession down one limb
+    reads as one block (the timing plot and the page's dope sheet)."""
     if doc.kind != "bvh" or not rows:
-        return
+        return [False] * len(rows)
     sk = doc.source.skeleton
     n_children = np.bincount(sk.parents[sk.parents >= 0], minlength=sk.n_joints)
     limb = np.full(sk.n_joints, -1)
@@ -258,10 +259,17 @@ def _bands(ax, doc: Document, rows: list[_Var]) -> None:
         p = int(sk.parents[j])
         if p >= 0:
             limb[j] = j if n_children[p] > 1 else limb[p]
-    shade, prev = False, None
-    for r, v in enumerate(rows):
+    out, shade, prev = [], False, None
+    for v in rows:
         b = limb[v.target]
         if b != prev:
             shade, prev = (not shade) and b >= 0, b
+        out.append(bool(shade))
+    return out
+
+
+def _bands(ax, doc: Document, rows: list[_Var]) -> None:
+    """Shade every other limb (:func:`limb_shades`)."""
+    for r, shade in enumerate(limb_shades(doc, rows)):
         if shade:
             ax.axhspan(r - 0.5, r + 0.5, color="0.93", zorder=0, lw=0)

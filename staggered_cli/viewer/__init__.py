@@ -109,12 +109,12 @@ def timing(doc: Document) -> dict[str, Any]:
     shaded) with their extreme knots ``[t_k, t]`` and editing knot times,
     contacts as ``[start, end]`` bars in their rows, and the pose times of
     each layer above the base."""
-    from ..pictures.common import _contact_rows, _rows
+    from ..pictures.common import _contact_rows, _rows, limb_shades
 
     rows = _rows(doc, None)
     labels = [v.name for v in rows]
     row_of = {v.name: r for r, v in enumerate(rows)}
-    shade = _shades(doc, rows)
+    shade = limb_shades(doc, rows)
     if doc.kind == "bvh":  # a contact on a joint: its rotation row
         for v in reversed(rows):
             row_of.setdefault(doc.source.skeleton.names[v.target], row_of[v.name])
@@ -143,27 +143,6 @@ def timing(doc: Document) -> dict[str, Any]:
 def _round(a) -> list:
     """Seconds as JSON numbers (a microsecond is finer than any frame)."""
     return np.round(np.asarray(a, dtype=float), 6).tolist()
-
-
-def _shades(doc: Document, rows) -> list[bool]:
-    """Every other limb (a chain below a joint with several children), as
-    the dope sheet shades them."""
-    if doc.kind != "bvh" or not rows:
-        return [False] * len(rows)
-    sk = doc.source.skeleton
-    n_children = np.bincount(sk.parents[sk.parents >= 0], minlength=sk.n_joints)
-    limb = np.full(sk.n_joints, -1)
-    for j in range(sk.n_joints):  # parents come before children
-        p = int(sk.parents[j])
-        if p >= 0:
-            limb[j] = j if n_children[p] > 1 else limb[p]
-    out, shade, prev = [], False, None
-    for v in rows:
-        b = limb[v.target]
-        if b != prev:
-            shade, prev = (not shade) and b >= 0, b
-        out.append(bool(shade))
-    return out
 
 
 def page_data(
