@@ -769,9 +769,9 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain, groups)
     refine = refine_f * float(motion.frame_time)
-    candidates = []
+    candidates, fits = [], []
     if partial:
-        candidates = partial_poses.find_partial(
+        candidates, fits = partial_poses.find_partial(
             proxy,
             ev.p,
             ev.weights,
@@ -785,6 +785,7 @@ def extract(
             significance=significance,
             spacing=spacing,
             stride=stride,
+            fit=True,
         )
     del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
@@ -816,7 +817,7 @@ def extract(
         parameters=parameters,
     )
     if partial:  # the candidates that earn their knots in the real spline layer
-        doc = partial_ops.confirmed(doc, candidates)
+        doc = partial_ops.confirmed(doc, candidates, fits, gap=partial_poses.PART_SPACING)
     if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
         motion.release_local()
     return doc

@@ -32,6 +32,11 @@ whole-body poses.  After the whole-body poses are placed, each body part
 4. **Confirmed in the real spline layer**
    (:func:`staggered_cli.ops.partial.confirmed`): the candidates, best
    first, become partial poses where they earn their knots in world space.
+5. **Then fit-driven** (``fit``): anywhere the part moves, farther than
+   ``min_spacing`` from the whole-body poses and :data:`PART_SPACING` from
+   the part's candidates, the same greedy rule without the features
+   proposes more; :func:`~staggered_cli.ops.partial.confirmed` adds those
+   that earn their knots, the largest real gain per knot first.
 
 Parts whose features the whole-body poses already cover get none: a plain
 walk gains few or none.  C3D clips have no body parts.
@@ -162,6 +167,52 @@ def pose_value(proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray)
     return float(np.percentile(per, VALUE_PERCENTILE))
 
 
+def _greedy(
+    sub: placement.Proxy,
+    knots: np.ndarray,
+    grid: np.ndarray,
+    taken: list[int],
+    spacing: int,
+    gap: int,
+    least: float,
+    *,
+    covered: bool,
+    found: list,
+    part: str,
+) -> np.ndarray:
+    """Greedily, the frames of ``grid`` where one more knot of every variable
+    of ``sub`` cuts its proxy misfit most (at least :data:`PART_GAIN` of the
+    segments' and ``least`` in all), each more than ``gap`` frames from the
+    others in ``taken``; appended to ``found`` as (gain, part, frame) and to
+    ``taken``.  ``covered``: leave out the frames where the variables of
+    :data:`COVERED_SHARE` of the weight have a knot within ``spacing``.
+    Returns ``knots`` with theirs."""
+    n = knots.shape[1]
+    while len(grid):
+        free = np.ones(len(grid), dtype=bool)
+        if covered:
+            near = (np.abs(knots[:, None, :] - grid[None, :, None]) <= spacing).any(axis=0)  # (G, n)
+            free = near.astype(float) @ sub.w < COVERED_SHARE * sub.w.sum()
+        for f in taken:
+            free &= np.abs(grid - f) >= gap
+        grid = grid[free]
+        if len(grid) == 0:
+            break
+        a, b = _neighbours(knots, grid.astype(float))
+        old = placement.span_costs(sub, np.stack([a, b], axis=-1)).sum(axis=1)
+        split = np.stack([a, np.broadcast_to(grid[:, None].astype(float), a.shape), b], axis=-1)
+        new = placement.span_costs(sub, split).sum(axis=1)
+        ok = (new <= PART_GAIN * old) & (old - new >= PART_VALUE * least)
+        if not ok.any():
+            break
+        best = int(np.argmax(np.where(ok, old - new, -np.inf)))
+        f = int(grid[best])
+        taken.append(f)
+        found.append((float(old[best] - new[best]), part, f))
+        knots = np.sort(np.concatenate([knots, np.full((1, n), float(f))]), axis=0)
+    return knots
+
+
 def find_partial(
     proxy: placement.Proxy,
     p: np.ndarray,
@@ -177,7 +228,8 @@ def find_partial(
     significance: float,
     spacing: int,
     stride: int,
-) -> list[tuple[str, int]]:
+    fit: bool = False,
+):
     """The candidate partial poses (see the module doc), (part, frame), the
     most misfit removed first: :func:`staggered_cli.ops.partial.confirmed`
     keeps those that earn their knots in the real spline layer.
@@ -189,9 +241,12 @@ def find_partial(
     columns : body part -> its variables' columns (:func:`part_columns`).
     pose_f, refine_f : the whole-body poses' frames (K,) and refinements (K, V) in frames.
     spacing : ``min_spacing`` in frames; stride: the placement grid, frames.
+    fit : also return the fit-driven candidates (step 5 of the module doc):
+        then ``(features, fits)``, each (part, frame), the most misfit removed first.
     """
     T = p.shape[0]
     found: list[tuple[float, str, int]] = []
+    fits: list[tuple[float, str, int]] = []
     reach = max(int(round(0.5 * filter_width * rate)), 1)
     # strictly more than PART_SPACING in frames: a clip's rate and its frame
     # time may disagree in the last digits (120 Hz and 0.008333 s)
@@ -220,26 +275,15 @@ def find_partial(
                 sites[max(m - reach, 1) : min(m + reach, T - 2) + 1] = True
         grid = np.arange(0, T, stride)
         grid = grid[sites[grid] & ~inside[grid]]
-        taken: list[int] = []
         n = len(sel)
-        while len(grid):
-            near = (np.abs(knots[:, None, :] - grid[None, :, None]) <= spacing).any(axis=0)  # (G, n)
-            free = near.astype(float) @ sub.w < COVERED_SHARE * sub.w.sum()
-            for f in taken:
-                free &= np.abs(grid - f) >= gap
-            grid = grid[free]
-            if len(grid) == 0:
-                break
-            a, b = _neighbours(knots, grid.astype(float))
-            old = placement.span_costs(sub, np.stack([a, b], axis=-1)).sum(axis=1)
-            split = np.stack([a, np.broadcast_to(grid[:, None].astype(float), a.shape), b], axis=-1)
-            new = placement.span_costs(sub, split).sum(axis=1)
-            ok = (new <= PART_GAIN * old) & (old - new >= PART_VALUE * value * n)
-            if not ok.any():
-                break
-            best = int(np.argmax(np.where(ok, old - new, -np.inf)))
-            f = int(grid[best])
-            taken.append(f)
-            found.append((float(old[best] - new[best]), part, f))
-            knots = np.sort(np.concatenate([knots, np.full((1, n), float(f))]), axis=0)
-    return [(part, f) for _, part, f in sorted(found, key=lambda g: -g[0])]
+        taken: list[int] = []
+        knots = _greedy(sub, knots, grid, taken, spacing, gap, value * n, covered=True, found=found, part=part)
+        if fit:  # then anywhere the part moves, away from the whole-body poses and the part's candidates
+            grid = np.arange(0, T, stride)
+            far = np.min(np.abs(grid[:, None] - pose_f[None, :]), axis=1) > spacing
+            grid = grid[gate[grid] & ~inside[grid] & far & (grid >= 1) & (grid <= T - 2)]
+            _greedy(sub, knots, grid, taken, spacing, gap, value * n, covered=False, found=fits, part=part)
+    ordered = [(part, f) for _, part, f in sorted(found, key=lambda g: -g[0])]
+    if fit:
+        return ordered, [(part, f) for _, part, f in sorted(fits, key=lambda g: -g[0])]
+    return ordered
