@@ -99,6 +99,21 @@ def _arm_knots(doc, hand: str) -> np.ndarray:
     return np.concatenate([rot.knots.t[rot.knots.of(rot.index(sk.names[j]))] for j in chain])
 
 
+def test_the_fit_driven_round_takes_the_best_real_gains_apart_and_each_earns_its_knots():
+    whole, _ = _docs("walk+dance_a")
+    # every 4th frame a left-arm candidate (82): measured 3 kept, at 0.87, 1.67 and 2.77 s: the round must pick, the best real gain per knot first
+    fits = [("@left-arm", f) for f in range(8, whole.n_frames - 8, 4)]
+    got = partial_ops.confirmed(whole, [], fits, gap=WINDOW)
+    times = partial_ops.partial_times(got).get("@left-arm", np.zeros(0))
+    assert 2 <= len(times) <= 5, times
+    assert np.all(np.diff(times) > WINDOW), times
+    # each pose lowers the spline layer's world error: all together lower it
+    assert partial_knots.spline_error(got) < partial_knots.spline_error(whole)
+    np.testing.assert_allclose(st.bake(got).channels, _clip("walk+dance_a").channels, atol=1e-9)
+    # no gap: more of them, never fewer
+    assert len(partial_ops.partial_times(partial_ops.confirmed(whole, [], fits))["@left-arm"]) >= len(times)
+
+
 def test_the_arms_get_poses_at_their_own_features_the_whole_body_poses_miss():
     hit = missed = 0
     for name in SPLICES:
@@ -125,9 +140,10 @@ def test_at_equal_knots_the_spline_layer_is_better_with_partial_poses():
         ratio, (n_whole, n_parts) = partial_knots.equal_knots_ratio(whole, parts)
         assert n_parts <= n_whole
         ratios.append(ratio)
-    # measured 0.991, 0.987, 0.974: geometric mean 0.984 (0.970 before the limbs'
-    # extreme knots took most of the arms' error; issue 37 asks 0.9: not met)
-    assert np.exp(np.mean(np.log(ratios))) <= 0.99, ratios
+    # measured 0.991, 0.979, 0.964: geometric mean 0.978 with the fit-driven round
+    # (0.984 without it, 0.970 before the limbs' extreme knots took most of the
+    # arms' error; issue 37 asks 0.9: not met)
+    assert np.exp(np.mean(np.log(ratios))) <= 0.982, ratios
     assert max(ratios) <= 1.0, ratios
 
 
@@ -135,13 +151,13 @@ def test_at_equal_knots_the_spline_layer_is_better_with_partial_poses():
 def test_at_equal_knots_a_dev_file_is_no_worse_with_partial_poses(name):
     m = dev_motion(name)
     ratio, _ = partial_knots.equal_knots_ratio(extract(m), extract(m, partial=True))
-    assert ratio <= 1.005, ratio  # measured 0.984, 1.002, 0.976
+    assert ratio <= 1.0, ratio  # measured 0.973, 0.994, 0.972
 
 
 def test_a_plain_walk_gains_few_partial_poses():
     doc = extract(dev_motion("cmu_02_01_walk.bvh"), partial=True)
     found = partial_ops.partial_times(doc)
-    assert sum(len(t) for t in found.values()) <= 3, found
+    assert sum(len(t) for t in found.values()) <= 3, found  # measured 2 leg poses
     assert not any(p.endswith("-arm") for p in found), found
 
 
