@@ -217,12 +217,12 @@ def extract(
     *,
     contact_joints: str | Sequence[str] | None = None,
     smoothing: float | None = None,
-    filter_width: float = 0.15,
+    filter_width: float | None = None,
     refine_window: float = 0.25,
     min_contact: float = 0.1,
     contact_tolerance: float = 0.03,
     significance: float = 0.5,
-    min_spacing: float = 0.1,
+    min_spacing: float | None = None,
     partial: bool = False,
 ) -> Document:
     """Find the staggered poses, refinements, contacts, splines and
@@ -237,8 +237,10 @@ def extract(
         feet and toes, or the lowest markers.  ``@left-leg`` style parts work.
     smoothing : float, optional
         Laplacian smoothing of the curvature signals, seconds (0.025).
-    filter_width : float
+    filter_width : float, optional
         Tent filter full base width of the pose probability, seconds.
+        Default 0.15, shorter for fast motion: times the clip's stride (the
+        median time between a foot's contacts) over 1 s, at least a third.
     refine_window : float
         Largest timing refinement, seconds.
     min_contact : float
@@ -248,8 +250,10 @@ def extract(
     significance : float
         Motion a pose needs, in figure heights per second summed over the
         body (0 keeps every local maximum).
-    min_spacing : float
-        Fewest seconds between two poses.
+    min_spacing : float, optional
+        Fewest seconds between two poses.  Default 0.1, scaled by the
+        clip's tempo as ``filter_width`` is.  ``doc.parameters`` records
+        the values used.
     partial : bool
         After the whole-body poses, add each body part's own partial poses
         (``doc.pose_part``) where its features fall between them and earn

@@ -13,13 +13,14 @@ from .conftest import dev_document, dev_motion, staggered_warnings
 
 
 def test_adding_a_pose_inside_a_staggered_span_makes_room(bandai_run):
-    """1.1179 s lies between pose 6's editing and extreme knots of several
-    variables: those refinements collapse, the motion does not change, and the
+    """1.1179 s lies between pose 8's editing and extreme knots of several
+    variables (pose 6 before the run's tempo-scaled spacing gave it 17 poses
+    for 13): those refinements collapse, the motion does not change, and the
     document stays readable (it used to be written with crossing knots)."""
     m, doc = bandai_run
     with staggered_warnings() as seen:
         added = cull.add_pose(doc, 1.1179)
-    assert any(s.startswith("add_time 1.12 s: pose 6") and "collapse to 0" in s for s in seen), seen
+    assert any(s.startswith("add_time 1.12 s: pose 8") and "collapse to 0" in s for s in seen), seen
     assert added.n_poses == doc.n_poses + 1
     manifest, arrays = to_parts(added)
     from_parts(manifest, arrays)
@@ -98,10 +99,11 @@ def test_a_pose_added_within_half_a_frame_of_another_is_refused(bandai_run):
 
     _, doc = bandai_run
     ft, t = doc.frame_time, float(doc.pose_t[3])
-    with pytest.raises(UsageError, match=r"there is already a pose at 0\.60 s \(pose 3\)"):
+    assert round(t, 2) == 0.5  # 0.6 before the run's tempo-scaled spacing
+    with pytest.raises(UsageError, match=r"there is already a pose at 0\.50 s \(pose 3\)"):
         cull.add_pose(doc, t)
     for dt in (1e-5, -1e-5, 0.49 * ft, -0.49 * ft):
-        with pytest.raises(UsageError, match=r"pose 3 is at 0\.60 s, less than half a frame away"):
+        with pytest.raises(UsageError, match=r"pose 3 is at 0\.50 s, less than half a frame away"):
             cull.add_pose(doc, t + dt)
     added = cull.add_pose(doc, t + 0.51 * ft)
     assert added.n_poses == doc.n_poses + 1

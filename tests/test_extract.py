@@ -5,6 +5,7 @@ consistency, and the signal operators on curves whose answers are known."""
 
 from __future__ import annotations
 
+import inspect
 import json
 from dataclasses import replace
 
@@ -13,6 +14,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.ndimage import gaussian_filter1d
 
+import staggered_cli as st
 from staggered_cli.contacts import detect as C
 from staggered_cli.errors import UsageError
 from staggered_cli.io.container import document_bytes
@@ -602,7 +604,12 @@ def test_cli_defaults_are_the_library_defaults():
     from staggered_cli.ops import extract as ops
 
     defaults = {p.name: p.default for p in command.params}
-    assert defaults["filter_width"] == smoothing.DEFAULT_FILTER_WIDTH
+    # the two durations the clip's tempo decides (ops.tempo_scale) are None in the CLI, the API and the library
+    assert defaults["filter_width"] is None and defaults["min_spacing"] is None
+    api = inspect.signature(st.extract).parameters
+    library = inspect.signature(ops.extract).parameters
+    assert api["filter_width"].default is None and api["min_spacing"].default is None
+    assert library["filter_width"].default is None and library["min_spacing"].default is None
     assert defaults["refine_window"] == ops.DEFAULT_REFINE_WINDOW
     assert defaults["min_contact"] == C.DEFAULT_MIN_CONTACT
     assert defaults["contact_tolerance"] == C.DEFAULT_TOLERANCE

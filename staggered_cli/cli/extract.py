@@ -53,10 +53,12 @@ def _read_motion(path: str):
 @click.option(
     "--filter-width",
     type=float,
-    default=0.15,
-    show_default=True,
+    default=None,
     metavar="SECONDS",
-    help="Tent filter width (full base) of the pose probability.",
+    help=(
+        "Tent filter width (full base) of the pose probability.  "
+        "[default: 0.15, times the stride over 1 s for faster motion]"
+    ),
 )
 @click.option(
     "--refine-window", type=float, default=0.25, show_default=True, metavar="SECONDS", help="Largest timing refinement."
@@ -88,10 +90,12 @@ def _read_motion(path: str):
 @click.option(
     "--min-spacing",
     type=float,
-    default=0.1,
-    show_default=True,
+    default=None,
     metavar="SECONDS",
-    help="Fewest seconds between two poses (one pose per cluster of coordinated events).",
+    help=(
+        "Fewest seconds between two poses (one pose per cluster of coordinated events).  "
+        "[default: 0.1, times the stride over 1 s for faster motion]"
+    ),
 )
 @click.option(
     "--partial",

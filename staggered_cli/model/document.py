@@ -436,6 +436,8 @@ def document_summary(doc: Document) -> dict:
             {"joint": c.joint, "start": round(c.start, 9), "end": round(c.end, 9)} for c in doc.constraints
         ],
         "figure_height": round(float(src.figure_height()), 6),
+        # what extract used, the durations its tempo chose among them (issue 34)
+        "parameters": dict(doc.parameters),
     }
     if isinstance(src, BvhMotion):
         out["joints"] = list(src.skeleton.names)

@@ -14,7 +14,11 @@
    discontinuity (the CMU T-pose), and the middle of every flight phase
    (:func:`flight_frames`: no contact for :data:`MIN_FLIGHT` seconds or
    more while the figure's centre falls as a thrown body does, a hop's or
-   a jump's time in the air) always carry a pose.
+   a jump's time in the air) always carry a pose.  Unless the user gives
+   them, ``filter_width`` and ``min_spacing`` follow the motion's tempo
+   (:func:`tempo_scale`, issue 34): a clip that strides faster than once a
+   second (a run, a dance, a sped-up walk) gets proportionally shorter
+   ones, so a pose still marks each phase of the step, not one per stance.
 5. Where they go (:func:`optimal_poses`; beyond the paper, whose poses sit
    on the maxima and whose priority ignores the fit): the frames near a
    feature (a peak of the combined evidence, or a contact cluster), chosen
@@ -107,6 +111,15 @@ DEFAULT_MIN_SPACING = 0.1
 MAX_MIN_SPACING = 10.0
 #: Default refinement search window, seconds (paper: 0.25 s).
 DEFAULT_REFINE_WINDOW = 0.25
+#: Tempo scaling of the default ``filter_width`` and ``min_spacing``
+#: (issue 34, fast motion): a clip whose stride (:func:`stride_period`) is
+#: shorter than this many seconds scales both by ``stride / REFERENCE_STRIDE``.
+#: The dev walks stride every 1.0-1.1 s and keep the defaults; the run
+#: strides every 0.73 s, the dances every 0.65-0.67 s.
+REFERENCE_STRIDE = 1.0
+#: The smallest tempo scale: a motion three times as fast as a walk, or
+#: faster, gets a third of the default durations (0.05 s and 0.033 s).
+MIN_TEMPO_SCALE = 1.0 / 3.0
 
 
 #: Largest clip extract takes, in values: frames x channels (BVH) or frames x
@@ -609,28 +622,57 @@ def prune_refinements(
     return r
 
 
+def stride_period(constraints) -> float | None:
+    """The motion's stride, seconds: the median time from one contact's
+    start to the next start of the same joint, over every contact joint;
+    ``None`` where no joint starts a contact three times (an idle stance, a
+    bow, a clip with no contacts: nothing says how fast it steps)."""
+    starts: dict[str, list[float]] = {}
+    for c in constraints:
+        starts.setdefault(c.joint, []).append(float(c.start))
+    gaps = [np.diff(np.sort(v)) for v in starts.values() if len(v) >= 3]
+    if not gaps:
+        return None
+    return float(np.median(np.concatenate(gaps)))
+
+
+def tempo_scale(constraints) -> float:
+    """How much shorter the default durations are for this motion: its
+    :func:`stride_period` over :data:`REFERENCE_STRIDE`, clamped to
+    [:data:`MIN_TEMPO_SCALE`, 1] (1 where it has no stride): a walk keeps the
+    defaults, and only motion that steps faster gets shorter ones."""
+    stride = stride_period(constraints)
+    if stride is None:
+        return 1.0
+    return float(np.clip(stride / REFERENCE_STRIDE, MIN_TEMPO_SCALE, 1.0))
+
+
 def check_options(
     *,
     smoothing: float | None = None,
-    filter_width: float = DEFAULT_FILTER_WIDTH,
+    filter_width: float | None = None,
     refine_window: float = DEFAULT_REFINE_WINDOW,
     min_contact: float = contact_detection.DEFAULT_MIN_CONTACT,
     contact_tolerance: float = contact_detection.DEFAULT_TOLERANCE,
     significance: float = DEFAULT_SIGNIFICANCE,
-    min_spacing: float = DEFAULT_MIN_SPACING,
-) -> dict[str, float]:
+    min_spacing: float | None = None,
+) -> dict[str, float | None]:
     """:func:`extract`'s numeric options, checked (``UsageError``) without a
-    clip: a batch checks its extract options so, once, before any file."""
+    clip: a batch checks its extract options so, once, before any file.
+    ``filter_width`` and ``min_spacing`` stay ``None`` (the clip's tempo
+    decides them, :func:`tempo_scale`) where not given."""
     return {
         "smoothing": _check(
             arg("smoothing"), DEFAULT_SMOOTHING if smoothing is None else smoothing, upper=MAX_SMOOTHING
         ),
-        "filter_width": _check(arg("filter_width"), filter_width, upper=MAX_FILTER_WIDTH),
+        "filter_width": None
+        if filter_width is None
+        else _check(arg("filter_width"), filter_width, upper=MAX_FILTER_WIDTH),
         "refine_window": _check(arg("refine_window"), refine_window, upper=MAX_REFINE_WINDOW),
         "min_contact": _check(arg("min_contact"), min_contact, upper=MAX_MIN_CONTACT),
         "contact_tolerance": _check(arg("contact_tolerance"), contact_tolerance, positive=True),
         "significance": _check(arg("significance"), significance),
-        "min_spacing": _check(arg("min_spacing"), min_spacing, upper=MAX_MIN_SPACING),
+        "min_spacing": None if min_spacing is None else _check(arg("min_spacing"), min_spacing, upper=MAX_MIN_SPACING),
     }
 
 
@@ -641,12 +683,12 @@ def extract(
     source_bytes: bytes | None = None,
     contact_joints: tuple[str, ...] | list[str] | None = None,
     smoothing: float | None = None,
-    filter_width: float = DEFAULT_FILTER_WIDTH,
+    filter_width: float | None = None,
     refine_window: float = DEFAULT_REFINE_WINDOW,
     min_contact: float = contact_detection.DEFAULT_MIN_CONTACT,
     contact_tolerance: float = contact_detection.DEFAULT_TOLERANCE,
     significance: float = DEFAULT_SIGNIFICANCE,
-    min_spacing: float = DEFAULT_MIN_SPACING,
+    min_spacing: float | None = None,
     partial: bool = False,
 ) -> Document:
     """Find staggered poses, refinements and contacts in a dense clip.
@@ -659,12 +701,15 @@ def extract(
         (BVH) or the lowest markers (C3D).
     smoothing : Laplacian smoothing of the local evidence, the standard
         deviation in seconds (default :data:`~staggered_cli.signals.DEFAULT_SMOOTHING`).
-    filter_width : tent filter full base width, seconds.
+    filter_width : tent filter full base width, seconds; default
+        :data:`DEFAULT_FILTER_WIDTH` times the clip's :func:`tempo_scale`.
     refine_window : largest refinement, seconds.
     min_contact : shortest contact, seconds.
     contact_tolerance : contact tolerance, a fraction of the figure height.
     significance : amount of motion (figure heights per second) a candidate
         pose needs; 0 keeps every local maximum of ``P``.
+    min_spacing : fewest seconds between two poses; default
+        :data:`DEFAULT_MIN_SPACING` times the clip's :func:`tempo_scale`.
     partial : after the whole-body poses, each body part's own partial
         poses where they earn their knots (:mod:`staggered_cli.signals.partial`,
         :func:`staggered_cli.ops.partial.confirmed`); BVH only (``UsageError``).
@@ -711,6 +756,11 @@ def extract(
     if contact_joints is not None:  # the user's choice: say which of them never rest
         contact_detection.warn_never_rested(joints, constraints, min_duration=min_contact, tolerance=contact_tolerance)
     center = center_height(motion) if constraints else None
+    scale = tempo_scale(constraints)  # the user's durations win; the defaults follow the motion's tempo
+    if filter_width is None:
+        filter_width = round(DEFAULT_FILTER_WIDTH * scale, 3)
+    if min_spacing is None:
+        min_spacing = round(DEFAULT_MIN_SPACING * scale, 3)
     variables = dense_variables(motion)
     weights = placement.variable_weights(motion, variables)
     if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
