@@ -245,3 +245,15 @@ def test_bundle_rebuilds_byte_for_byte(tmp_path):
     assert json.loads((tmp_path / "three.version.json").read_text()) == json.loads(
         (VENDOR / "three.version.json").read_text()
     )
+
+
+def test_partial_poses_are_marked_and_own_only_their_parts_rows():
+    doc = st.cull(dev_document("cmu_02_01_walk.bvh"), add_time=0.5, part="@left-arm")
+    tm = timing(doc)
+    k = doc.pose_part.index("@left-arm")
+    assert tm["pose_part"][k] == "@left-arm" and sum(p is not None for p in tm["pose_part"]) == 1
+    targets = np.concatenate([tr.targets for tr in doc.tracks])
+    arm = {doc.source.skeleton.names[j] for j in targets[doc.part_mask("@left-arm")]}
+    t_k = round(float(doc.pose_t[k]), 6)
+    rows_with_k = {r["name"] for r in tm["rows"] for tk, _ in r["ext"] if round(tk, 6) == t_k}
+    assert len(rows_with_k) >= 4 and rows_with_k <= arm, (rows_with_k, arm)

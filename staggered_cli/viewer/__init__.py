@@ -134,6 +134,7 @@ def timing(doc: Document) -> dict[str, Any]:
         contacts.append({"row": row_of[joint], "spans": _round([(s, s + d) for s, d in spans])})
     return {
         "pose_t": _round(doc.pose_t),
+        "pose_part": list(doc.pose_part),  # null: a whole-body pose; else the body part it owns
         "rows": out_rows,
         "contacts": contacts,
         "layers": [_round(t) for t in doc.layer_pose_t],

@@ -8,6 +8,8 @@
   const meta = JSON.parse(document.getElementById("staggered-meta").textContent);
   const timing = meta.timing;
   const poseT = timing ? timing.pose_t : [];
+  const posePart = timing && timing.pose_part ? timing.pose_part : poseT.map(() => null);
+  const PARTIAL = "#7b4fa0"; // a partial pose: its line dashed, as plot --kind timing draws it
   const duration = Math.max(meta.duration, 1e-6);
   const COLORS = ["#1f5fbf", "#e0701a", "#2a9d4b", "#8e44ad", "#c0392b", "#16a085"];
   const HIDDEN = 1e7; // where a point not seen is put: beyond the camera's far plane
@@ -269,7 +271,7 @@
     const k = poseAt(state.t);
     const onPose = k >= 0 && Math.abs(poseT[k] - state.t) < 0.5 * lead.frame_time;
     $("clock").textContent = `${state.t.toFixed(3)} s / ${duration.toFixed(3)} s · frame ${frameOf(lead, state.t)}` +
-      (poseT.length ? ` · ${onPose ? "at" : "after"} pose ${Math.max(k, 0)} of ${poseT.length}` : "");
+      (poseT.length ? ` · ${onPose ? "at" : "after"} pose ${Math.max(k, 0)}${posePart[Math.max(k, 0)] ? " (" + posePart[Math.max(k, 0)] + ")" : ""} of ${poseT.length}` : "");
     drawTimeline();
     drawStrip();
   }
@@ -298,7 +300,12 @@
     g.fillStyle = "#e6e6e2"; g.fillRect(LABELS, 12, w - LABELS - 12, 10);
     g.fillStyle = "#9fb6d9"; g.fillRect(LABELS, 12, tlX(state.t, w) - LABELS, 10);
     g.strokeStyle = "#333"; g.lineWidth = 1;
-    for (const t of poseT) { const x = Math.round(tlX(t, w)) + 0.5; g.beginPath(); g.moveTo(x, 6); g.lineTo(x, 28); g.stroke(); }
+    poseT.forEach((t, k) => {
+      const x = Math.round(tlX(t, w)) + 0.5;
+      g.strokeStyle = posePart[k] ? PARTIAL : "#333"; g.setLineDash(posePart[k] ? [3, 2] : []);
+      g.beginPath(); g.moveTo(x, 6); g.lineTo(x, 28); g.stroke();
+    });
+    g.setLineDash([]);
     const x = tlX(state.t, w);
     g.fillStyle = "#d62728"; g.fillRect(x - 1.5, 2, 3, 30);
   }
@@ -343,9 +350,12 @@
     poseT.forEach((t, k) => {
       if (!inWin(t)) return;
       const x = Math.round(stX(t, w)) + 0.5;
+      g.strokeStyle = posePart[k] ? PARTIAL : "#c4c4c4"; g.setLineDash(posePart[k] ? [4, 3] : []);
       g.beginPath(); g.moveTo(x, HEAD - 3); g.lineTo(x, y(nRows)); g.stroke();
+      g.fillStyle = posePart[k] ? PARTIAL : "#444";
       if (x - lastLabel > 18) { g.fillText(String(k), x, 2); lastLabel = x; }
     });
+    g.setLineDash([]); g.strokeStyle = "#c4c4c4"; g.fillStyle = "#444";
     g.fillStyle = "rgba(44, 160, 44, 0.3)";
     for (const c of timing.contacts) for (const [s, e] of c.spans) {
       if (e < lo - pad || s > hi + pad) continue;
