@@ -523,10 +523,14 @@ def contact_refinements(
     return out, best < np.iinfo(int).max
 
 
-def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing: float) -> np.ndarray | None:
+def translation_extremes(
+    motion, variables, ev: trails.LocalEvidence, smoothing: float, up: np.ndarray | None = None
+) -> np.ndarray | None:
     """(T, n) the extremes of a BVH clip's ``n`` translation variables (the
     first ``n`` columns, :func:`trails.coordinate_extremes`), or None (a C3D
-    clip, no translations)."""
+    clip, no translations).  With the world's ``up`` (3,), the extremes of
+    the height (the translation along ``up``) are :func:`preferred`: the
+    root's crouch and apex, not a larger sway of the hips near them."""
     if not isinstance(motion, BvhMotion):
         return None
     groups = [dense for kind, _, _, dense in variables if kind != ROTATION]
@@ -538,17 +542,38 @@ def translation_extremes(motion, variables, ev: trails.LocalEvidence, smoothing:
     moving = np.flatnonzero(np.any(dense != dense[:1], axis=(0, 2)))
     if len(moving):
         out[:, moving] = trails.coordinate_extremes(dense[:, moving], ev.figure_height, ev.rate, ev.breaks, smoothing)
+        if up is not None:  # the height's own extremes first (issue 34: a dance's sway outswung them)
+            h = (dense[:, moving] @ up)[:, :, None]
+            vertical = trails.coordinate_extremes(h, ev.figure_height, ev.rate, ev.breaks, smoothing)
+            out[:, moving] = preferred(vertical, out[:, moving])
     return out
 
 
+def preferred(first: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Extremes (T, n) for :func:`strongest_frames` in which every extreme of
+    ``first`` outranks every one of ``other`` (the largest of ``first``
+    near a pose wins; ``other``'s count where ``first`` has none)."""
+    top = other.max(axis=0, initial=0.0)
+    return np.where(first > 0, first + top, other)
+
+
 def limbs_own_extremes(
-    motion, variables, ev: trails.LocalEvidence, smoothing: float
+    motion,
+    variables,
+    ev: trails.LocalEvidence,
+    smoothing: float,
+    heading: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The own extremes of a BVH clip's limbs: ``(limb, extremes)``, with
     ``limb`` (n,) the column in ``extremes`` of each of the ``n`` rotation
     variables (the last ``n`` columns; -1 for the torso's) and ``extremes``
     (T, L) :func:`trails.limb_extremes` of each limb's top joint (the hand
-    seen from the collar, the foot from the hip); None for a C3D clip."""
+    seen from the collar, the foot from the hip); None for a C3D clip.
+    ``heading``: ``(tops, offsets)``, the limbs' top joints and
+    :func:`trails.heading_offsets` of their ends: the extremes of those
+    (the hand's swing forward and back) are :func:`preferred` (issue 34: in
+    a dance the largest turn of the hand near a pose was often a raise,
+    not the swing)."""
     if not isinstance(motion, BvhMotion):
         return None
     found = [(np.asarray(t, dtype=int), dense) for kind, _, t, dense in variables if kind == ROTATION]
@@ -563,6 +588,14 @@ def limbs_own_extremes(
     extremes = trails.limb_extremes(
         motion.skeleton, targets, dense, ev.figure_height, ev.rate, ev.breaks, smoothing, which=cols
     )
+    if heading is not None:
+        tops_all, offsets = heading
+        at = {int(t): i for i, t in enumerate(tops_all)}
+        have = [c for c, t in enumerate(used) if t in at]
+        if have:
+            s = offsets[:, [at[used[c]] for c in have], None]
+            swing = trails.coordinate_extremes(s, ev.figure_height, ev.rate, ev.breaks, smoothing)
+            extremes[:, have] = preferred(swing, extremes[:, have])
     return limb, extremes
 
 
@@ -763,7 +796,14 @@ def extract(
         min_spacing = round(DEFAULT_MIN_SPACING * scale, 3)
     variables = dense_variables(motion)
     weights = placement.variable_weights(motion, variables)
+    up = heading = None
     if isinstance(motion, BvhMotion):  # nothing below needs world positions (24 bytes a joint and frame)
+        world = motion.world_positions()
+        up = contact_detection.up_direction(world, motion.figure_height())
+        tops = np.unique(trails.limb_tops(motion.skeleton, motion.figure_height()))
+        tops = tops[tops >= 0]
+        heading = (tops, trails.heading_offsets(motion.skeleton, world, tops, up, rate))
+        del world
         motion.release_world()
     ev = trails.local_evidence(motion, smoothing)
     events = contact_events(constraints, T, rate, ev.breaks)
@@ -782,8 +822,8 @@ def extract(
     if significance > 0:
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
-    own = translation_extremes(motion, variables, ev, smoothing)
-    limbs = limbs_own_extremes(motion, variables, ev, smoothing)
+    own = translation_extremes(motion, variables, ev, smoothing, up)
+    limbs = limbs_own_extremes(motion, variables, ev, smoothing, heading)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
