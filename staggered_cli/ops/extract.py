@@ -35,16 +35,18 @@
    (:func:`strongest_frames`): where one of its coordinates turns back
    (:func:`trails.coordinate_extremes`: the crouch, the apex, a walk's down
    and up; the largest, not the nearest, since the nearest turn was often
-   another axis's small one), kept unless it makes the fit
+   another axis's small one; the height's own extreme first, unless the
+   largest other fits the root strictly better: :func:`better_fit`), kept unless it makes the fit
    worse (issue 34: the curvature of the root's 3-D path peaks where the
    path bends, not where the height turns, and the misfit rule, which asks
    a knot to cut the root's whole misfit to 40 %, kept 34 of 471; a vertical
    extreme removes the vertical misfit only).  A limb's rotations (an arm
    from the collar to the fingers, a leg from the hip, the neck and head:
    :func:`trails.limb_tops`) take the largest extreme of the limb near the
-   pose (:func:`strongest_frames`), where its end, seen from the limb's top
-   in the torso's frame, turns back (:func:`trails.limb_extremes`: the
-   hand's swing, the foot's step), all of the limb's joints together, kept
+   pose (:func:`strongest_frames`) of its end's offset from the pelvis along
+   the body's heading (:func:`trails.heading_offsets`: the hand's swing, the
+   foot's step), else where its end, seen from the limb's top in the
+   torso's frame, turns back (:func:`trails.limb_extremes`), all of the limb's joints together, kept
    unless they make the limb's summed misfit worse (issue 34: each arm joint
    on its own curvature peak, or on its own extreme, fitted its own angle
    better and the hand worse: staggered within a chain, the joints' errors
