@@ -371,6 +371,31 @@ def test_limb_extremes_are_where_the_hand_turns_back():
     assert set(at) - set(big) <= {29, 30, 31, 59, 60, 61}
 
 
+def test_heading_offsets_swing_the_hands_in_opposition_whichever_way_the_figure_faces():
+    from staggered_cli.skeleton import body_joints
+
+    """The Bandai walk: each hand's offset from the pelvis along the heading
+    swings by 0.1-0.8 of the figure height, the left forward when the right
+    is back (correlation below -0.8), and so do the feet; the figure turned
+    by 90 degrees about the up axis and moved gives the same offsets, up to
+    the heading's sign."""
+    m = dev_motion("bandai1_walk_normal_001.bvh")
+    sk, h, w = m.skeleton, m.figure_height(), m.world_positions()
+    tops = np.unique(trails.limb_tops(sk, h))
+    tops = tops[tops >= 0]
+    up = C.up_direction(w, h, body_joints(sk))
+    off = trails.heading_offsets(sk, w, tops, up, m.rate)
+    col = {sk.names[t]: i for i, t in enumerate(tops)}
+    for left, right in (("Shoulder_L", "Shoulder_R"), ("UpperLeg_L", "UpperLeg_R")):
+        a, b = off[:, col[left]], off[:, col[right]]
+        assert 0.1 < np.ptp(a) / h < 0.8 and 0.1 < np.ptp(b) / h < 0.8, (np.ptp(a) / h, np.ptp(b) / h)
+        assert np.corrcoef(a, b)[0, 1] < -0.8, np.corrcoef(a, b)[0, 1]
+    turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # 90 degrees about y (up)
+    assert np.allclose(up, [0.0, 1.0, 0.0])
+    turned = trails.heading_offsets(sk, w @ turn.T + [3.0, 0.0, -7.0], tops, up, m.rate)
+    assert np.allclose(np.abs(turned), np.abs(off), atol=1e-9 * h)
+
+
 def test_flight_frames_are_the_middles_of_the_times_in_the_air():
     from staggered_cli.contacts.constraint import Constraint
 

@@ -591,3 +591,62 @@ def limb_tops(sk: Skeleton, height: float) -> np.ndarray:
             p = int(sk.parents[j])
             top[j] = j if p < 0 or torso[p] else top[p]
     return top
+
+
+#: Seconds over which the hips' lateral axis is averaged into the heading of
+#: :func:`heading_offsets` (a step's sway is not a turn of the body).
+HEADING_SMOOTH = 0.5
+
+
+def heading_offsets(sk: Skeleton, world: np.ndarray, tops: np.ndarray, up: np.ndarray, rate: float) -> np.ndarray:
+    """How far limbs' ends are ahead of the pelvis along the body's heading.
+
+    Parameters
+    ----------
+    sk : the skeleton.
+    world : (T, J, 3) world joint positions.
+    tops : (L,) the top joints of the limbs (:func:`limb_tops`).
+    up : (3,) unit up axis.
+    rate : frames per second.
+
+    Returns
+    -------
+    (T, L): for each limb, the position of its end (the last joint of its
+    chain: the hand, the toe) relative to the pelvis, along the heading:
+    the horizontal axis orthogonal to the line between the hips, averaged
+    over :data:`HEADING_SMOOTH` seconds.  The hips are the tops of the two
+    limbs whose ends are lowest (by their median height) and hang from one
+    joint, the pelvis; zeros when there are no such two.  The sign of the
+    heading is arbitrary (a maximum forward is a minimum backward).  An
+    arm swings forward and back along it whatever else it does: a dance's
+    raised arm turns back on other axes too, often by more.
+    """
+    T = world.shape[0]
+    tops = np.asarray(tops, dtype=int)
+    out = np.zeros((T, len(tops)))
+    if T == 0 or len(tops) < 2:
+        return out
+    ends = []
+    for t in tops:
+        p = int(sk.parents[t])
+        chains = _limb_chains(sk, p) if p >= 0 else []
+        ends.append(next((c[-1] for c, _ in chains if c and c[0] == t), int(t)))
+    ends = np.array(ends)
+    up = np.asarray(up, dtype=float)
+    low = np.argsort(np.median(world[:, ends] @ up, axis=0), kind="stable")[:2]
+    pelvis = int(sk.parents[tops[low[0]]])
+    if pelvis < 0 or int(sk.parents[tops[low[1]]]) != pelvis:
+        return out
+    lateral = world[:, tops[low[0]]] - world[:, tops[low[1]]]
+    lateral = lateral - (lateral @ up)[:, None] * up
+    lateral = lateral / np.maximum(quat.norm(lateral)[:, None], 1e-12)
+    size = max(1, int(round(HEADING_SMOOTH * rate)))
+    csum = np.cumsum(np.concatenate([np.zeros((1, 3)), lateral]), axis=0)
+    lo = np.clip(np.arange(T) - size // 2, 0, T)
+    hi = np.clip(np.arange(T) + size - size // 2, 0, T)
+    lateral = (csum[hi] - csum[lo]) / (hi - lo)[:, None]  # a moving mean, shorter at the clip's ends
+    forward = np.cross(up, lateral)
+    forward = forward / np.maximum(quat.norm(forward)[:, None], 1e-12)
+    for i, e in enumerate(ends):
+        out[:, i] = np.einsum("tk,tk->t", world[:, e] - world[:, pelvis], forward)
+    return out
