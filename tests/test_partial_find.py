@@ -101,7 +101,8 @@ def _arm_knots(doc, hand: str) -> np.ndarray:
 
 def test_the_fit_driven_round_takes_the_best_real_gains_apart_and_each_earns_its_knots():
     whole, _ = _docs("walk+dance_a")
-    # every 4th frame a left-arm candidate (82): measured 3 kept, at 0.87, 1.67 and 2.77 s: the round must pick, the best real gain per knot first
+    # every 4th frame a left-arm candidate (82): measured 3 kept, at 0.87, 1.67 and
+    # 2.77 s: the round must pick, the best real gain per knot first
     fits = [("@left-arm", f) for f in range(8, whole.n_frames - 8, 4)]
     got = partial_ops.confirmed(whole, [], fits, gap=WINDOW)
     times = partial_ops.partial_times(got).get("@left-arm", np.zeros(0))
