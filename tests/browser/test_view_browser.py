@@ -176,6 +176,28 @@ def test_document_compared_with_its_source(page, pages, name):
     assert not visit.errors, visit.errors
 
 
+@pytest.mark.skipif("cmu_02_01_walk.bvh" not in BVH_FILES, reason="no CMU 02_01 in ../shared/mocap")
+def test_a_partial_pose_opens_named_and_marked(page, pages):
+    doc = st.cull(dev_document("cmu_02_01_walk.bvh"), add_time=0.5, part="@left-arm")
+    k = doc.pose_part.index("@left-arm")
+    path = _write(pages, "partial.html", st.view(doc, name="partial"))
+    visit = chrome.open_page(page, path, f"pose={k}")
+    assert not visit.errors, visit.errors
+    assert page.evaluate("window.staggeredView.state.t") == pytest.approx(float(doc.pose_t[k]), abs=1e-6)
+    assert f"at pose {k} (@left-arm) of {doc.n_poses}" in page.inner_text("#clock")
+    _check_figure(chrome.scene_pixels(page))
+    # the dope sheet draws the partial pose's line in its own colour (page.js
+    # PARTIAL); away from it, so that the current time's line does not cover it
+    _set_hash(page, "#t=0", 0.0)
+    import io
+
+    from PIL import Image
+
+    strip = np.asarray(Image.open(io.BytesIO(page.locator("#strip").screenshot())).convert("RGB")).astype(int)
+    purple = (np.abs(strip - np.array([0x7B, 0x4F, 0xA0])) < 40).all(axis=2)
+    assert purple.sum() > 60, f"{purple.sum()} pixels of the partial pose's line"
+
+
 @pytest.mark.skipif(not chrome.REQUIRED, reason="the one-hour page (263 MB, a minute) runs under make test-browser")
 @pytest.mark.skipif("cmu_01_01_forward_jumps.bvh" not in BVH_FILES, reason="no CMU 01_01 in ../shared/mocap")
 def test_one_hour_clip_at_120_hz_of_31_joints_loads(page, pages):
