@@ -485,36 +485,25 @@ def edit_pose(
         ops.check_exaggerate(w)
     if x is not None:
         check_ease(x)
-    if time is not None and shift is not None:
-        raise UsageError(f"give {arg('time')} or {arg('shift')}, not both")
     names = _names(joints, "joints")
-    if subtree and not names:
-        raise UsageError(f"{arg('subtree')} needs {arg('joints')}: it adds the descendants of the joints named there")
+    ops.check_request(
+        pose=pose,
+        all_poses=all,
+        rotate=bool(rot),
+        translate=bool(tra),
+        exaggerate=w,
+        ease=x,
+        from_bvh=from_bvh,
+        frame=frame,
+        root=root,
+        layer=layer,
+        time=time,
+        shift=shift,
+        joints=bool(names),
+        subtree=subtree,
+    )
     if all:
-        if from_bvh is None or pose is not None or frame is not None:
-            raise UsageError(f"{arg('all')} needs {arg('from_bvh')}, and no {arg('pose')} or {arg('frame')}")
-        if rot or tra or w is not None or x is not None or time is not None or shift is not None or root or layer:
-            raise UsageError(
-                f"{arg('all')} goes with {arg('from_bvh')}, {arg('on')}, {arg('joints')} and {arg('subtree')} only"
-            )
         return _apply_pose_file(doc, from_bvh, on, names, subtree)[0]
-    if pose is None:
-        raise UsageError(f"{arg('pose')} is missing (or give {arg('from_bvh')} with {arg('all')})")
-    if (from_bvh is None) != (frame is None):
-        raise UsageError(f"{arg('from_bvh')} and {arg('frame')} go together")
-    moves = time is not None or shift is not None
-    if not (rot or tra or w is not None or x is not None or from_bvh is not None or moves):
-        raise UsageError(
-            f"nothing to do: give {arg('rotate')}, {arg('translate')}, {arg('exaggerate')}, {arg('from_bvh')}, "
-            f"{arg('ease')}, {arg('time')} or {arg('shift')}"
-        )
-    if root and from_bvh is None and w is None:
-        raise UsageError(f"{arg('root')} goes with {arg('from_bvh')} or {arg('exaggerate')}")
-    if names and w is None and from_bvh is None and x is None:
-        raise UsageError(
-            f"{arg('joints')} restricts {arg('exaggerate')}, {arg('from_bvh')} and {arg('ease')} "
-            f"({arg('rotate')} and {arg('translate')} name their own joints)"
-        )
     k = check_pose_index(doc, int(pose), layer)
     values = None
     if from_bvh is not None:

@@ -110,37 +110,34 @@ def edit_pose(
     tra = triples(translate, "--translate")
     w = finite(exaggerate, "--exaggerate") if exaggerate is not None else None
     x = finite(ease, "--ease") if ease is not None else None
-    # the values alone are checked before the document is read (a batch checks its steps so)
+    # the values and options alone are checked before the document is read (a batch checks its steps so)
     if w is not None:
         ops.check_exaggerate(w)
     if x is not None:
         from ..ops.layers import check_ease
 
         check_ease(x)
-    if new_time is not None and shift is not None:
-        raise click.UsageError("give --time or --shift, not both")
-    if subtree and not joints:
-        raise click.UsageError("--subtree needs --joints: it adds the descendants of the joints named there")
+    try:
+        ops.check_request(
+            pose=pose,
+            all_poses=all_poses,
+            rotate=bool(rot),
+            translate=bool(tra),
+            exaggerate=w,
+            ease=x,
+            from_bvh=from_bvh,
+            frame=frame,
+            root=root,
+            layer=layer,
+            time=new_time,
+            shift=shift,
+            joints=bool(joints),
+            subtree=subtree,
+        )
+    except UsageError as err:  # options that do not go together: a usage error of the command
+        raise click.UsageError(err.cli_message()) from None
     if all_poses:
-        if from_bvh is None or pose is not None or frame is not None:
-            raise click.UsageError("--all needs --from-bvh, and no --pose or --frame")
-        if rot or tra or w is not None or x is not None or new_time is not None or shift is not None or root or layer:
-            raise click.UsageError("--all goes with --from-bvh, --on, --joints and --subtree only")
         return _apply_all(input_path, from_bvh, on, joints, subtree, output, force, fmt)
-    if pose is None:
-        raise click.UsageError("Missing option '--pose' (or use --from-bvh FILE --all)")
-    if (from_bvh is None) != (frame is None):
-        raise click.UsageError("--from-bvh and --frame go together")
-    if root and from_bvh is None and w is None:
-        raise click.UsageError("--root goes with --from-bvh or --exaggerate")
-    if not (rot or tra or w is not None or x is not None or from_bvh or new_time is not None or shift is not None):
-        raise click.UsageError(
-            "nothing to do: give --rotate, --translate, --exaggerate, --from-bvh, --ease, --time or --shift"
-        )
-    if joints and w is None and from_bvh is None and x is None:
-        raise click.UsageError(
-            "--joints restricts --exaggerate, --from-bvh and --ease (--rotate and --translate name their own joints)"
-        )
     from ..api import edit_pose as op
 
     doc = read_document(input_path)

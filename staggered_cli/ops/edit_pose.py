@@ -299,6 +299,59 @@ def check_exaggerate(w: float) -> None:
         raise UsageError(f"{arg('exaggerate')} must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
 
 
+def check_request(
+    *,
+    pose: int | None,
+    all_poses: bool,
+    rotate: bool,
+    translate: bool,
+    exaggerate: float | None,
+    ease: float | None,
+    from_bvh: object | None,
+    frame: int | None,
+    root: bool,
+    layer: int,
+    time: float | None,
+    shift: float | None,
+    joints: bool,
+    subtree: bool,
+) -> None:
+    """Refuse an edit whose options do not go together, before any document
+    is read (``st.edit_pose`` and the CLI's ``edit-pose`` ask it; a batch
+    checks its steps so).  ``rotate``, ``translate`` and ``joints`` say
+    whether any were given; the values are checked apart
+    (:func:`check_exaggerate`, :func:`~staggered_cli.ops.layers.check_ease`)."""
+    if time is not None and shift is not None:
+        raise UsageError(f"give {arg('time')} or {arg('shift')}, not both")
+    if subtree and not joints:
+        raise UsageError(f"{arg('subtree')} needs {arg('joints')}: it adds the descendants of the joints named there")
+    moves = time is not None or shift is not None
+    if all_poses:
+        if from_bvh is None or pose is not None or frame is not None:
+            raise UsageError(f"{arg('all')} needs {arg('from_bvh')}, and no {arg('pose')} or {arg('frame')}")
+        if rotate or translate or exaggerate is not None or ease is not None or moves or root or layer:
+            raise UsageError(
+                f"{arg('all')} goes with {arg('from_bvh')}, {arg('on')}, {arg('joints')} and {arg('subtree')} only"
+            )
+        return
+    if pose is None:
+        raise UsageError(f"{arg('pose')} is missing (or give {arg('from_bvh')} with {arg('all')})")
+    if (from_bvh is None) != (frame is None):
+        raise UsageError(f"{arg('from_bvh')} and {arg('frame')} go together")
+    if not (rotate or translate or exaggerate is not None or ease is not None or from_bvh is not None or moves):
+        raise UsageError(
+            f"nothing to do: give {arg('rotate')}, {arg('translate')}, {arg('exaggerate')}, {arg('from_bvh')}, "
+            f"{arg('ease')}, {arg('time')} or {arg('shift')}"
+        )
+    if root and from_bvh is None and exaggerate is None:
+        raise UsageError(f"{arg('root')} goes with {arg('from_bvh')} or {arg('exaggerate')}")
+    if joints and exaggerate is None and from_bvh is None and ease is None:
+        raise UsageError(
+            f"{arg('joints')} restricts {arg('exaggerate')}, {arg('from_bvh')} and {arg('ease')} "
+            f"({arg('rotate')} and {arg('translate')} name their own joints)"
+        )
+
+
 def place_joint(doc: Document) -> int:
     """The joint that carries the figure's place: the first joint, in
     hierarchy order, whose translation moves over the clip (CMU's root
