@@ -131,21 +131,7 @@ def recomposed(
     for i in order:  # parents first: a parent's position is rebuilt before its child's
         p = parents[i]
         out[:, i] = values[:, i] - values[:, p] if to_offsets else values[:, i] + out[:, p]
-    samples_t, samples_v = [], []
-    knot_v = track.knot_v.copy()
-    for i in range(track.n_vars):
-        kt = track.knot_t[track.knot_slice(i)]
-        if i in keep:  # refitted from nothing, then taken back from ``track``
-            samples_t.append(np.zeros(0))
-            samples_v.append(np.zeros((0, 3)))
-            continue
-        st = np.unique(np.concatenate([frame_t, kt]))
-        rows = np.searchsorted(t, st)
-        samples_t.append(st)
-        samples_v.append(out[rows, i])
-        knot_v[track.knot_slice(i)] = out[np.searchsorted(t, kt), i]
-    fitted = fit_layer(track.kind, track.knots.with_values(knot_v), samples_t, samples_v)
-    return track.with_base(_with_variables(fitted, track.base, keep))
+    return refit_markers(track, frame_t, t, out, ~np.isin(np.arange(track.n_vars), keep))
 
 
 def seen_at(seen: np.ndarray, frame_t: np.ndarray, t: np.ndarray) -> np.ndarray:
