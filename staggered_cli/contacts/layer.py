@@ -221,12 +221,7 @@ def joint_layer(
         j = sk.names.index(c.joint)
         path = _source_path(src_wp[:, j], doc.frame_time, c, t)
         inside = (t >= c.start - 1e-9) & (t <= c.end + 1e-9)
-        if whole is not None:
-            shift = whole
-        elif move_plants:
-            shift = _plant_offset(wp[inside, j], path[inside], tolerance)
-        else:
-            shift = np.zeros(3)
+        shift = _plant_shift(whole, move_plants, wp[inside, j], path[inside], tolerance)
         return path, path + _horizontal(shift, up)
 
     todo = [
@@ -543,6 +538,19 @@ def _kept_along(source: np.ndarray, before: np.ndarray, after: np.ndarray) -> tu
     return asked, got, off, moved
 
 
+def _plant_shift(
+    whole: np.ndarray | None, move_plants: bool, pos: np.ndarray, path: np.ndarray, tolerance: float
+) -> np.ndarray:
+    """How far (3,) a plant moves off its captured path: with the figure
+    where the figure moved as a whole (``whole``), by :func:`_plant_offset`
+    under ``move_plants``, else not at all."""
+    if whole is not None:
+        return whole
+    if move_plants:
+        return _plant_offset(pos, path, tolerance)
+    return np.zeros(3)
+
+
 def _plant_offset(pos: np.ndarray, path: np.ndarray, tolerance: float) -> np.ndarray:
     """How far (3,) a disturbed plant moves from its captured path, given the
     point's positions ``pos`` and its path ``path`` (n, 3) over the constraint.
@@ -630,14 +638,7 @@ def marker_layer(
         seen = inside & np.all(np.isfinite(pts[:, m]), axis=1) & np.all(np.isfinite(path), axis=1)
         if not seen.any():
             continue
-        if c.pin:
-            shift = np.zeros(3)
-        elif whole is not None:
-            shift = whole
-        elif move_plants:
-            shift = _plant_offset(pts[seen, m], path[seen], tolerance)
-        else:
-            shift = np.zeros(3)
+        shift = np.zeros(3) if c.pin else _plant_shift(whole, move_plants, pts[seen, m], path[seen], tolerance)
         target = path + _horizontal(shift, up)
         w = _smooth_weight(t, c.start, c.end, blend)[:, None]
         # in the blend windows the correction fades from its value at the boundary
