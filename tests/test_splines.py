@@ -205,7 +205,7 @@ def test_translation_fit_recovers_known_controls():
         np.testing.assert_array_equal(before, after)  # inputs untouched
 
 
-def test_translation_fit_keeps_defaults_where_undetermined():
+def test_translation_fit_keeps_defaults_where_undetermined_and_meets_one_sample():
     rng = np.random.default_rng(4)
     p0, p3 = rng.normal(size=(4, 3)), rng.normal(size=(4, 3))
     # seg 0: one inner sample (plus endpoints, which do not count);
@@ -216,10 +216,16 @@ def test_translation_fit_keeps_defaults_where_undetermined():
     values = rng.normal(size=(7, 3))
     a, b = bezier.fit_translation_tangents(p0, p3, seg, u, values, 4)
     da, db = bezier.default_translation_tangents(p0, p3)
-    np.testing.assert_array_equal(a[:3], da[:3])
-    np.testing.assert_array_equal(b[:3], db[:3])
+    np.testing.assert_array_equal(a[1:3], da[1:3])
+    np.testing.assert_array_equal(b[1:3], db[1:3])
     fit = bezier.bezier_eval_at(p0, a, b, p3, seg[5:], u[5:])
     np.testing.assert_allclose(fit, values[5:], rtol=0, atol=1e-10)
+    # one inner sample: the least change of the defaults that passes through it
+    # (at u = 0.5 both controls weigh the same, so both move by the same)
+    one = bezier.bezier_eval_at(p0, a, b, p3, seg[1:2], u[1:2])
+    np.testing.assert_allclose(one, values[1:2], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a[0] - da[0], b[0] - db[0], rtol=0, atol=1e-12)
+    assert np.linalg.norm(a[0] - da[0]) > 0.1
 
 
 def test_translation_bad_input_names_the_argument():
@@ -339,7 +345,7 @@ def test_rotation_fit_recovers_known_tangents():
         np.testing.assert_array_equal(before, after)  # inputs untouched
 
 
-def test_rotation_fit_never_worse_than_slerp_and_keeps_defaults_where_undetermined():
+def test_rotation_fit_never_worse_than_slerp_keeps_defaults_where_undetermined_and_meets_one_sample():
     rng = np.random.default_rng(11)
     S = 60
     q0 = _random_unit(rng, S)
@@ -352,7 +358,10 @@ def test_rotation_fit_never_worse_than_slerp_and_keeps_defaults_where_undetermin
     # the last segment's two samples come from a cubic near slerp
     da, db = rotation_spline.default_rotation_tangents(q0[-1:], q3[-1:])
     exact = rotation_spline.rotation_eval_at(q0[-1:], da + 0.1, db - 0.1, q3[-1:], np.zeros(2, int), u[-2:])
-    values = np.concatenate([values, _random_unit(rng, 3), exact])
+    # the one usable sample of S-3: near the slerp, as a bend between two
+    # close knots is (an endpoint sample of S-2 is noise: unused)
+    near = quat.mul(quat.slerp(q0[S - 3], q3[S - 3], 0.5), quat.exp(rng.normal(size=3) * 0.1))
+    values = np.concatenate([values, near[None], _random_unit(rng, 2), exact])
     a, b = rotation_fit.fit_rotation_tangents(q0, q3, seg, u, values, S)
     assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
     assert np.all(np.linalg.norm(a, axis=-1) <= np.pi + 1e-12)
@@ -361,9 +370,11 @@ def test_rotation_fit_never_worse_than_slerp_and_keeps_defaults_where_undetermin
     err0 = rotation_fit.rotation_fit_errors(q0, da, db, q3, seg, u, values, S)
     assert np.all(err <= err0 + 1e-12)
     assert np.mean(err) < np.mean(err0)
-    # one usable sample (S-3), only endpoint samples (S-2): defaults
-    np.testing.assert_array_equal(a[S - 3 : S - 1], da[S - 3 : S - 1])
-    np.testing.assert_array_equal(b[S - 3 : S - 1], db[S - 3 : S - 1])
+    # only endpoint samples (S-2): defaults; one usable sample (S-3): the
+    # curve bends from the slerp through it
+    np.testing.assert_array_equal(a[S - 2], da[S - 2])
+    np.testing.assert_array_equal(b[S - 2], db[S - 2])
+    assert err0[S - 3] > 0.05 and err[S - 3] < 1e-6
     # two samples determine the six tangent parameters (exactly, generically)
     assert err[S - 1] < 1e-6
 

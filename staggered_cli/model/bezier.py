@@ -6,7 +6,9 @@ endpoints ``p0``, ``p3`` and inner controls stored relative to them::
     P1 = p0 + a,   P2 = p3 + b.
 
 The default ("uniform") controls, for segments whose samples cannot
-determine their tangents, are the straight line at uniform speed.
+determine their tangents, are the straight line at uniform speed; a
+segment with a single inner sample bends them, by the least change, through
+it (one sample cannot fix two controls, but a straight line ignores it).
 """
 
 from __future__ import annotations
@@ -110,9 +112,10 @@ def fit_translation_tangents(
 
     The Bézier is linear in ``(a, b)``, so each segment solves a 2x2 normal
     system shared by all ``D`` components.  Only samples with ``0 < u < 1``
-    are used (the endpoints are interpolated anyway).  Segments with fewer
-    than 2 such samples, or whose samples are too close together in ``u`` to
-    separate the two controls, keep :func:`default_translation_tangents`.
+    are used (the endpoints are interpolated anyway).  Segments with no such
+    sample, or whose samples are too close together in ``u`` to separate the
+    two controls, keep :func:`default_translation_tangents`; a segment with
+    exactly one takes the least change of those that passes through it.
 
     Parameters
     ----------
@@ -166,4 +169,26 @@ def fit_translation_tangents(
     fit_a = (m22[:, None] * r1 - m12[:, None] * r2) / det_safe
     fit_b = (m11[:, None] * r2 - m12[:, None] * r1) / det_safe
     ok = ok[:, None] & np.isfinite(fit_a) & np.isfinite(fit_b)
+    a, b = _through_one_sample(a, b, seg, wa, wb, y, count)
     return np.where(ok, fit_a, a), np.where(ok, fit_b, b)
+
+
+def _through_one_sample(
+    a: np.ndarray, b: np.ndarray, seg: np.ndarray, wa: np.ndarray, wb: np.ndarray, y: np.ndarray, count: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The default controls ``a, b`` (S, D) of the segments with one inner
+    sample moved by the least change that makes the Bézier pass through it:
+    ``(wa, wb) (y - wa a - wb b) / (wa² + wb²)`` (issue 34).  Two controls
+    cannot be fitted to one sample, but the straight line ignores it: a knot
+    put on an extreme two frames from its editing knot (a 30 Hz clip) made
+    the spline miss the frame between them and the one after by the bend of
+    the extreme, where the segment it split had fitted both."""
+    one = count[seg] == 1
+    if not one.any():
+        return a, b
+    s, u_a, u_b, target = seg[one], wa[one, None], wb[one, None], y[one]
+    miss = (target - u_a * a[s] - u_b * b[s]) / (u_a * u_a + u_b * u_b)
+    a, b = a.copy(), b.copy()
+    a[s] += u_a * miss
+    b[s] += u_b * miss
+    return a, b

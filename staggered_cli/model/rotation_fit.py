@@ -286,7 +286,11 @@ def fit_rotation_tangents(
     from the uniform tangents (exactly slerp) and accepts a step only when it
     lowers that segment's error, so no segment ends worse than slerp.  Each
     segment has its own damping and stops on its own once converged.
-    Segments with fewer than 2 usable samples keep the uniform tangents.
+    Segments with no usable sample keep the uniform tangents; one with a
+    single sample starts from the tangent-space fit that bends the uniform
+    controls through it (:func:`.bezier.fit_translation_tangents`) and
+    meets it (issue 34: a knot on an extreme a frame or two from its editing
+    knot left the slerp to miss the bend between them).
 
     Parameters
     ----------
@@ -334,7 +338,7 @@ def fit_rotation_tangents(
     params = np.concatenate([a0, b0], axis=-1)
 
     use = (u > 0.0) & (u < 1.0) & np.all(np.isfinite(values), axis=-1)
-    active = np.bincount(seg[use], minlength=n_segments) >= 2
+    active = np.bincount(seg[use], minlength=n_segments) >= 1
     use &= active[seg]
     if iterations == 0 or not np.any(active):
         return (a0, b0, np.zeros(0, dtype=np.intp), np.zeros((0, 4))) if return_curve else (a0, b0)

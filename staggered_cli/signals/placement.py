@@ -200,8 +200,9 @@ def segment_costs(proxy: Proxy, var: np.ndarray, a: np.ndarray, b: np.ndarray) -
     """Weighted misfit (n,) (the sum of residual lengths) of the least-squares cubic Bézier through the
     values at frames ``a`` and ``b`` (fractional, ``a < b``) of variable
     ``var``, over the frames strictly between them (measured on at most
-    :data:`SAMPLES` of them).  Segments with fewer than two frames inside keep
-    the default (straight) controls, as the fit does."""
+    :data:`SAMPLES` of them).  Segments with one frame inside cost nothing
+    (the fit bends its straight controls through it); none inside, nothing
+    to miss."""
     var = np.asarray(var, dtype=int).ravel()
     a = np.asarray(a, dtype=float).ravel()
     b = np.asarray(b, dtype=float).ravel()
@@ -280,6 +281,9 @@ def _costs(xc, weight, var, a, b, first, count) -> np.ndarray:
     length = np.sqrt(_sum_in_order(r, axis=0))  # (L, n)
     cost = np.sum(np.multiply(length.T, m, out=np.empty((n, L))), axis=1)
     scale = np.where(dense, 1.0, count / L)
+    # one frame inside: the fit bends the straight controls through it
+    # (bezier._through_one_sample), so the spline misses nothing there
+    scale = np.where(count == 1, 0.0, scale)
     return cost * scale * weight[var]
 
 
