@@ -396,7 +396,7 @@ def test_heading_offsets_swing_the_hands_in_opposition_whichever_way_the_figure_
     assert np.allclose(np.abs(turned), np.abs(off), atol=1e-9 * h)
 
 
-def test_flight_frames_are_the_middles_of_the_times_in_the_air():
+def test_flight_frames_are_the_tops_of_the_times_in_the_air():
     from staggered_cli.contacts.constraint import Constraint
 
     rate = 30.0
@@ -418,6 +418,10 @@ def test_flight_frames_are_the_middles_of_the_times_in_the_air():
     np.testing.assert_array_equal(flight_frames(cons, 120, rate, center), [52])
     center[45:61] = 0.55 + 0.1 * g * (t[45:61] - t[45]) * (t[60] - t[45:61])  # 0.2 g: held up
     assert len(flight_frames(cons, 120, rate, center)) == 0
+    # the pose goes on the top of the throw, not the middle of the frames in the air
+    top = t[49]
+    center[40:66] = 0.55 + 0.5 * g * ((t[49] - t[40]) ** 2 - (t[40:66] - top) ** 2)
+    np.testing.assert_array_equal(flight_frames(cons, 120, rate, center), [49])
 
 
 def test_laplacian_smoothing_does_not_depend_on_the_memory_layout():

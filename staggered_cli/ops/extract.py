@@ -11,7 +11,7 @@
    (:func:`pose_count`): the significant local maxima of ``P`` at least
    ``min_spacing`` apart, or the clusters of contact changes if there are
    more.  The first and last frame, both sides of a one-frame
-   discontinuity (the CMU T-pose), and the middle of every flight phase
+   discontinuity (the CMU T-pose), and the top of every flight phase
    (:func:`flight_frames`: no contact for :data:`MIN_FLIGHT` seconds or
    more while the figure's centre falls as a thrown body does, a hop's or
    a jump's time in the air) always carry a pose.  Unless the user gives
@@ -106,7 +106,7 @@ REFINE_GAIN = 0.4
 #: misfit around its pose worse.
 EXTREME_GAIN = 1.0
 #: A flight phase (no contact joint planted, between two contacts) at least
-#: this long, seconds, gets a pose of its own at its middle (issue 34: a
+#: this long, seconds, gets a pose of its own at its top (issue 34: a
 #: dance's short hops fell between the poses of the take-off and landing).
 MIN_FLIGHT = 0.1
 #: Default fewest seconds between two poses (issue 13), and the most allowed.
@@ -434,12 +434,15 @@ def center_height(motion: BvhMotion | MarkerMotion) -> np.ndarray:
 
 
 def flight_frames(constraints, n_frames: int, rate: float, center: np.ndarray | None = None) -> np.ndarray:
-    """The middle frame of every flight phase: frames where no contact is
+    """The top of every flight phase: frames where no contact is
     planted, at least :data:`MIN_FLIGHT` seconds of them, with a contact
     before and after (not the clip's start or end, which is no flight), over
     which the figure's ``center`` height (figure heights, :func:`center_height`)
     falls as a thrown body does: the parabola fitted to it (a frame before
-    and after included) accelerates down by :data:`BALLISTIC` g or more."""
+    and after included) accelerates down by :data:`BALLISTIC` g or more.
+    The top is that parabola's vertex, a frame of the flight (without
+    ``center``: the flight's middle frame); a hop rises faster than it
+    falls, and its middle frame came a frame or two after the apex."""
     if not constraints or n_frames < 3:
         return np.zeros(0, dtype=int)
     held = np.zeros(n_frames + 1, dtype=int)
@@ -453,13 +456,17 @@ def flight_frames(constraints, n_frames: int, rate: float, center: np.ndarray | 
     starts, ends = edges[0::2], edges[1::2] - 1  # airborne runs, first and last frame
     inner = (starts > 0) & (ends < n_frames - 1) & ((ends - starts + 1) / rate >= MIN_FLIGHT - 1e-9)
     starts, ends = starts[inner], ends[inner]
-    if center is not None:
-        falls = np.zeros(len(starts), dtype=bool)
-        for n, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
-            t = np.arange(a - 1, b + 2) / rate
-            falls[n] = 2.0 * np.polyfit(t - t.mean(), center[a - 1 : b + 2], 2)[0] <= -BALLISTIC * _GRAVITY
-        starts, ends = starts[falls], ends[falls]
-    return (starts + ends) // 2
+    if center is None:
+        return (starts + ends) // 2
+    falls = np.zeros(len(starts), dtype=bool)
+    apex = (starts + ends) // 2
+    for n, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        t = np.arange(a - 1, b + 2) / rate
+        c2, c1, _ = np.polyfit(t - t.mean(), center[a - 1 : b + 2], 2)
+        falls[n] = 2.0 * c2 <= -BALLISTIC * _GRAVITY
+        if falls[n]:  # the parabola's top, a frame of the flight
+            apex[n] = min(max(int(round((t.mean() - c1 / (2.0 * c2)) * rate)), a), b)
+    return apex[falls]
 
 
 def chain_variables(motion: BvhMotion | MarkerMotion, names: tuple[str, ...], joint: str) -> np.ndarray:
