@@ -61,16 +61,18 @@ def _ratios(keep: str | None) -> dict[str, float]:
 @pytest.mark.parametrize("keep", [None, "25%"])
 def test_the_sparse_layer_is_at_least_as_good_as_even_spacing(keep):
     """Geometric mean of extracted / even <= 0.85 over the dev BVH files, no
-    file above 1.11, at the candidate count and after cull --keep 25%
-    (measured 0.780 and 1.100 (bandai2_run), 0.782 and 1.000; before the
-    limbs' knots went on their own extremes 0.793 and 1.107, 0.841; before
-    the root's, issue 34: 0.825 and 1.234)."""
+    file above 1.10 (issue 34's bars), at the candidate count and after cull
+    --keep 25% (measured 0.756 and 1.061 (bandai1_walk), 0.799 and 1.009
+    (bandai2_run); 0.780 and 1.100, 0.782 and 1.000 while a segment with one
+    inner sample kept straight controls; before the limbs' knots went on
+    their own extremes 0.793 and 1.107, 0.841; before the root's: 0.825 and
+    1.234)."""
     if len(BVH_FILES) < 10:
         pytest.skip("needs the 10 dev BVH files")
     r = _ratios(keep)
     gm = float(np.exp(np.mean(np.log(list(r.values())))))
     assert gm <= 0.85, (gm, r)
-    assert max(r.values()) <= 1.11, r
+    assert max(r.values()) <= 1.10, r
 
 
 def test_refinements_earn_their_keep():
