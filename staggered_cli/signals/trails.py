@@ -598,6 +598,20 @@ def limb_tops(sk: Skeleton, height: float) -> np.ndarray:
 HEADING_SMOOTH = 0.5
 
 
+def _apart(world: np.ndarray, a: list[int], b: list[int]) -> tuple[int, int] | None:
+    """The first joints, going down two legs' chains together, that stand
+    apart (their median distance over the clip is more than a thousandth of
+    the largest): the hips.  A CMU skeleton's ``LHipJoint`` and
+    ``RHipJoint`` sit on the pelvis, and the line between them has no
+    direction; its ``LeftUpLeg`` and ``RightUpLeg`` do.  None if no pair does."""
+    pairs = list(zip(a, b, strict=False))
+    if not pairs:
+        return None
+    gaps = np.array([np.median(np.linalg.norm(world[:, i] - world[:, j], axis=-1)) for i, j in pairs])
+    apart = np.flatnonzero(gaps > 1e-3 * gaps.max()) if gaps.max() > 0 else []
+    return pairs[int(apart[0])] if len(apart) else None
+
+
 def heading_offsets(sk: Skeleton, world: np.ndarray, tops: np.ndarray, up: np.ndarray, rate: float) -> np.ndarray:
     """How far limbs' ends are ahead of the pelvis along the body's heading.
 
@@ -614,9 +628,12 @@ def heading_offsets(sk: Skeleton, world: np.ndarray, tops: np.ndarray, up: np.nd
     (T, L): for each limb, the position of its end (the last joint of its
     chain: the hand, the toe) relative to the pelvis, along the heading:
     the horizontal axis orthogonal to the line between the hips, averaged
-    over :data:`HEADING_SMOOTH` seconds.  The hips are the tops of the two
-    limbs whose ends are lowest (by their median height) and hang from one
-    joint, the pelvis; zeros when there are no such two.  The sign of the
+    over :data:`HEADING_SMOOTH` seconds.  The legs are the two limbs whose
+    ends are lowest (by their median height) and hang from one joint, the
+    pelvis; the hips are their first joints that stand apart (:func:`_apart`:
+    a CMU skeleton's hip joints sit on the pelvis, and their line gave no
+    heading, so every CMU clip's offsets were zero); zeros when there are no
+    such two.  The sign of the
     heading is arbitrary (a maximum forward is a minimum backward).  An
     arm swings forward and back along it whatever else it does: a dance's
     raised arm turns back on other axes too, often by more.
@@ -626,18 +643,23 @@ def heading_offsets(sk: Skeleton, world: np.ndarray, tops: np.ndarray, up: np.nd
     out = np.zeros((T, len(tops)))
     if T == 0 or len(tops) < 2:
         return out
-    ends = []
+    ends, chains_of = [], []
     for t in tops:
         p = int(sk.parents[t])
         chains = _limb_chains(sk, p) if p >= 0 else []
-        ends.append(next((c[-1] for c, _ in chains if c and c[0] == t), int(t)))
+        chain = next((c for c, _ in chains if c and c[0] == t), [int(t)])
+        ends.append(chain[-1])
+        chains_of.append(chain)
     ends = np.array(ends)
     up = np.asarray(up, dtype=float)
     low = np.argsort(np.median(world[:, ends] @ up, axis=0), kind="stable")[:2]
     pelvis = int(sk.parents[tops[low[0]]])
     if pelvis < 0 or int(sk.parents[tops[low[1]]]) != pelvis:
         return out
-    lateral = world[:, tops[low[0]]] - world[:, tops[low[1]]]
+    hips = _apart(world, chains_of[low[0]], chains_of[low[1]])
+    if hips is None:
+        return out
+    lateral = world[:, hips[0]] - world[:, hips[1]]
     lateral = lateral - (lateral @ up)[:, None] * up
     lateral = lateral / np.maximum(quat.norm(lateral)[:, None], 1e-12)
     size = max(1, int(round(HEADING_SMOOTH * rate)))
