@@ -901,9 +901,9 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain, groups)
     refine = refine_f * float(motion.frame_time)
-    candidates, fits = [], []
+    candidates, fits, demotions = [], [], []
     if partial:
-        candidates, fits = partial_poses.find_partial(
+        candidates, fits, demotions = partial_poses.find_partial(
             proxy,
             ev.p,
             ev.weights,
@@ -918,6 +918,7 @@ def extract(
             spacing=spacing,
             stride=stride,
             fit=True,
+            demote=True,
         )
     del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
@@ -949,7 +950,7 @@ def extract(
         parameters=parameters,
     )
     if partial:  # the candidates that earn their knots in the real spline layer
-        doc = partial_ops.confirmed(doc, candidates, fits, gap=partial_poses.PART_SPACING)
+        doc = partial_ops.confirmed(doc, candidates, fits, demotions, gap=partial_poses.PART_SPACING, budget=True)
     if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
         motion.release_local()
     return doc
