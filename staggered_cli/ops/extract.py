@@ -781,8 +781,10 @@ def extract(
         pose needs; 0 keeps every local maximum of ``P``.
     min_spacing : fewest seconds between two poses; default
         :data:`DEFAULT_MIN_SPACING` times the clip's :func:`tempo_scale`.
-    partial : after the whole-body poses, each body part's own partial
-        poses where they earn their knots (:mod:`staggered_cli.signals.partial`,
+    partial : after the whole-body poses, partition them among the body
+        parts: a whole-body pose there for one part only becomes that part's
+        partial pose, and the knots freed (no more) go to the parts' own
+        partial poses where they earn them (:mod:`staggered_cli.signals.partial`,
         :func:`staggered_cli.ops.partial.confirmed`); BVH only (``UsageError``).
 
     Returns

@@ -1,9 +1,12 @@
 """Partial poses found by extract (issue 37): which candidates earn their knots.
 
 :mod:`staggered_cli.signals.partial` proposes partial poses from each body
-part's own evidence and the placement proxy; :func:`confirmed` adds those
-that make the real spline layer better, judged in world space, to the
-document (:func:`staggered_cli.ops.cull.add_poses` with the part).
+part's own evidence and the placement proxy, and the whole-body poses that
+may become partial poses; :func:`confirmed` makes partial those whose other
+knots cost the real spline layer little (:func:`demoted`,
+:func:`staggered_cli.ops.cull.demote_pose`) and adds the partial poses that
+make it better, judged in world space
+(:func:`staggered_cli.ops.cull.add_poses` with the part).
 """
 
 from __future__ import annotations

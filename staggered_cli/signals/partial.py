@@ -38,6 +38,18 @@ whole-body poses.  After the whole-body poses are placed, each body part
    proposes more; :func:`~staggered_cli.ops.partial.confirmed` adds those
    that earn their knots, the largest real gain per knot first.
 
+6. **Whole-body poses there for one part** (:func:`demotions`, the
+   partitioning of the degrees of freedom the paper leaves open): where a
+   part has a feature site at a whole-body pose, what the pose's knots
+   outside the part hold in place per knot in the proxy
+   (:func:`demotion_costs`) ranks it; the cheapest are proposed to become
+   partial poses of that part, each with the other parts' best frames near
+   it (:func:`replacements`), and
+   :func:`staggered_cli.ops.partial.confirmed` makes partial those whose
+   lost knots cost the real spline layer less than a cull's per knot, then
+   spends the knots freed (``extract --partial`` never has more knots than
+   plain extract) on steps 3 to 5 and those frames.
+
 Parts whose features the whole-body poses already cover get none: a plain
 walk gains few or none.  C3D clips have no body parts.
 """
