@@ -263,3 +263,31 @@ def test_every_dev_bvh_round_trips_to_its_bytes_with_partial_poses_and_culls_exa
     culled = st.cull(doc, keep=str(n))
     assert culled.n_poses == n
     assert bvh_bytes(st.bake(culled)) == mocap(name).read_bytes()
+
+
+def test_an_edit_of_a_pose_made_partial_changes_only_its_part_between_its_neighbouring_knots():
+    from staggered_cli.ops.bake import bake
+
+    from .test_partial import channel_columns, same_variables
+
+    whole, parts = _docs("walk+dance_a")
+    made = [k for k, p in enumerate(parts.pose_part) if p is not None and parts.pose_t[k] in set(whole.pose_t)]
+    assert made
+    k = made[0]  # measured: pose 6 (1.133 s), made a @right-arm pose, 5 of its arm variables refined
+    part = parts.pose_part[k]
+    mask = parts.part_mask(part)
+    r = parts.refinements()
+    assert np.count_nonzero(r[k, mask]) >= 3, "a pose made partial keeps its part's refinements"
+    cols = channel_columns(parts, mask)
+    before = bake(parts).channels
+    joint = "LeftArm" if part == "@left-arm" else "RightArm"
+    for kw in ({"rotate": {joint: (10.0, 0.0, 15.0)}}, {"exaggerate": 1.6}):
+        edited = st.edit_pose(parts, k, **kw)
+        assert same_variables(parts, edited, ~mask), kw
+        after = bake(edited).channels
+        assert np.array_equal(before[:, ~cols], after[:, ~cols]), kw
+        changed = np.flatnonzero(np.any(before != after, axis=1)) * parts.frame_time
+        # between the part's knots of the poses around it (a neighbour's extreme may lie off its time)
+        lo = min(parts.pose_t[k - 1] + min(0.0, r[k - 1, mask].min()), parts.pose_t[k] + r[k, mask].min())
+        hi = max(parts.pose_t[k + 1] + max(0.0, r[k + 1, mask].max()), parts.pose_t[k] + r[k, mask].max())
+        assert changed.size and changed[0] > lo - 1e-9 and changed[-1] < hi + 1e-9, kw
