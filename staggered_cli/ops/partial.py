@@ -157,6 +157,7 @@ def confirmed(
     doc = _added(doc, candidates, masks, now, value, n0, gap)
     return _best_first(doc, alts + list(fits or []), masks, now, WORLD_VALUE * value, gap, n0)
 
+
 def _added(
     doc: Document, candidates, masks, now: np.ndarray, value: float, limit: int | None = None, gap: float = 0.0
 ) -> Document:
@@ -215,7 +216,6 @@ def _best_first(
         room -= added
         version += 1
     return doc
-
 
 
 def _pose_at(doc: Document, t: float) -> int | None:
