@@ -255,9 +255,12 @@ def test_every_dev_bvh_round_trips_to_its_bytes_with_partial_poses_and_culls_exa
 
     doc = extract(dev_motion(name), source_name=name, partial=True)
     whole = dev_document(name)
-    # the poses of the plain extract stay (some made partial), within its knots
+    # the poses of the plain extract stay (some made partial), within its knots,
+    # and the spline layer is no worse at equal knots (measured: the bow 0.864,
+    # CMU 05_06 0.936, 115_06 0.912, 01_01 0.983, 131_02 0.967, the others 1.0)
     assert set(whole.pose_t.tolist()) <= set(doc.pose_t.tolist())
     assert _knots(doc) <= _knots(whole)
+    assert partial_knots.equal_knots_ratio(whole, doc)[0] <= 1.0
     assert bvh_bytes(st.bake(doc)) == mocap(name).read_bytes()
     n = max(2, doc.n_poses // 3)
     culled = st.cull(doc, keep=str(n))
