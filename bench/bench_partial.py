@@ -5,17 +5,20 @@ of a walk or a box lift) and every dev BVH file:
 
 * the partial poses per part, and per part per second;
 * the arms' own feature peaks (tests/part_events.py) that the whole-body
-  poses miss (no knot of the arm within 0.1 s), and how many of them have a
-  partial pose of that arm within 0.1 s (goal: 80 %);
+  poses of plain extract miss (no knot of the arm within 0.1 s), and how
+  many of them have a partial pose of that arm within 0.1 s (goal: 80 %);
+  the same for the whole-body poses ``--partial`` leaves (some plain ones
+  are partial poses there), hit by a knot of an arm's partial pose; and the
+  peaks no arm knot keys at all, without and with ``--partial``;
 * the most partial poses of one part in any 0.3 s (goal: 1);
 * the spline layer alone (``bake --layers splines``: world joint positions
-  against the source, mean over joints and frames, % of figure height) with
-  the partial poses, against the whole-body poses only, *at the same total
-  number of knots*: the whole-body extract culled (``cull --keep``, by
-  error) by as many poses as it takes for the knots of the whole-body poses
-  left plus the partial poses not to exceed those of the whole-body
-  extract.  Goal: geometric mean of the ratios <= 0.9 on the spliced clips,
-  <= 1.0 on the dev BVH files, no file above 1.05;
+  against the source, mean over joints and frames, % of figure height) of
+  the ``--partial`` document at its own total number of knots (never more
+  than plain extract's), against the whole-body extract culled (``cull
+  --keep``, by error) to the same number of knots, read linearly between
+  the two culls around it (tests/partial_knots.py).  Goal: geometric mean
+  of the ratios <= 0.9 on the spliced clips, <= 1.0 on the dev BVH files,
+  no file above 1.05;
 * extract's time with and without ``partial``.
 
     python bench/bench_partial.py [FILE ...]
