@@ -5,17 +5,20 @@ of a walk or a box lift) and every dev BVH file:
 
 * the partial poses per part, and per part per second;
 * the arms' own feature peaks (tests/part_events.py) that the whole-body
-  poses miss (no knot of the arm within 0.1 s), and how many of them have a
-  partial pose of that arm within 0.1 s (goal: 80 %);
+  poses of plain extract miss (no knot of the arm within 0.1 s), and how
+  many of them have a partial pose of that arm within 0.1 s (goal: 80 %);
+  the same for the whole-body poses ``--partial`` leaves (some plain ones
+  are partial poses there), hit by a knot of an arm's partial pose; and the
+  peaks no arm knot keys at all, without and with ``--partial``;
 * the most partial poses of one part in any 0.3 s (goal: 1);
 * the spline layer alone (``bake --layers splines``: world joint positions
-  against the source, mean over joints and frames, % of figure height) with
-  the partial poses, against the whole-body poses only, *at the same total
-  number of knots*: the whole-body extract culled (``cull --keep``, by
-  error) by as many poses as it takes for the knots of the whole-body poses
-  left plus the partial poses not to exceed those of the whole-body
-  extract.  Goal: geometric mean of the ratios <= 0.9 on the spliced clips,
-  <= 1.0 on the dev BVH files, no file above 1.05;
+  against the source, mean over joints and frames, % of figure height) of
+  the ``--partial`` document at its own total number of knots (never more
+  than plain extract's), against the whole-body extract culled (``cull
+  --keep``, by error) to the same number of knots, read linearly between
+  the two culls around it (tests/partial_knots.py).  Goal: geometric mean
+  of the ratios <= 0.9 on the spliced clips, <= 1.0 on the dev BVH files,
+  no file above 1.05;
 * extract's time with and without ``partial``.
 
     python bench/bench_partial.py [FILE ...]
@@ -55,9 +58,10 @@ def most_in_window(times: np.ndarray, window: float = WINDOW) -> int:
     return int(np.max(np.searchsorted(t, t + window - 1e-9, side="left") - np.arange(len(t))))
 
 
-def arm_knots(doc, hand: str) -> np.ndarray:
+def arm_knots(doc, hand: str, whole_only: bool = False, partial_only: bool = False) -> np.ndarray:
     """The knot times of the arm's joints, from the hand up to the arm's root
-    (the joint below the lowest one both hands share)."""
+    (the joint below the lowest one both hands share); ``whole_only``: of the
+    whole-body poses only, ``partial_only``: of the partial poses only."""
     sk = doc.source.skeleton
     j = sk.names.index(hand)
     chain = [j]
@@ -65,7 +69,14 @@ def arm_knots(doc, hand: str) -> np.ndarray:
     while chain[-1] not in roots.values() and sk.parents[chain[-1]] >= 0:
         chain.append(int(sk.parents[chain[-1]]))
     tr = [t for t in doc.tracks if t.kind == "rotation"][0]
-    return np.concatenate([tr.knots.t[tr.knots.of(tr.index(sk.names[c]))] for c in chain])
+    is_whole = np.array([p is None for p in doc.pose_part])
+    keep = np.ones(len(tr.knots.t), dtype=bool)
+    if whole_only:
+        keep = is_whole[tr.knots.pose]
+    elif partial_only:
+        keep = ~is_whole[tr.knots.pose]
+    sl = [tr.knots.of(tr.index(sk.names[c])) for c in chain]
+    return np.concatenate([tr.knots.t[s][keep[s]] for s in sl])
 
 
 def hand_part(doc, hand: str) -> str:
@@ -78,20 +89,31 @@ def hand_part(doc, hand: str) -> str:
     return ""
 
 
-def coverage(motion, name: str, whole, found: dict[str, np.ndarray]) -> tuple[int, int]:
-    """(hit, missed): the arms' feature peaks the whole-body poses miss, and of
-    them those with a partial pose of their arm within :data:`NEAR`."""
+def coverage(motion, name: str, whole, with_parts) -> tuple[int, int, int, int, int, int]:
+    """(hit, missed): the arms' feature peaks the whole-body poses of the
+    plain extract ``whole`` miss, and of them those with a partial pose of
+    their arm within :data:`NEAR`; (hit, missed) again for the whole-body
+    poses of the ``--partial`` extract (some of the plain ones are partial
+    poses there), hit by a knot of an arm's partial pose (its time or its
+    refined extreme); and how many peaks no knot of the arm keys at all in
+    each document."""
+    found = partial_ops.partial_times(with_parts)
     sk = motion.skeleton
     first = 1 if name in TPOSE_FILES else 0
     peaks = part_events.feature_peaks(
         sk.names, sk.parents, motion.world_positions(), float(motion.frame_time), motion.figure_height(), first=first
     )
-    hit = missed = 0
+    hit = missed = own_hit = own_missed = bare = bare_parts = 0
     for hand, t in peaks.items():
         miss = part_events.missed(t, arm_knots(whole, hand))
         missed += len(miss)
         hit += int(part_events.hit(miss, found.get(hand_part(whole, hand), np.zeros(0))).sum())
-    return hit, missed
+        own = part_events.missed(t, arm_knots(with_parts, hand, whole_only=True))
+        own_missed += len(own)
+        own_hit += len(own) - len(part_events.missed(own, arm_knots(with_parts, hand, partial_only=True)))
+        bare += len(miss)
+        bare_parts += len(part_events.missed(t, arm_knots(with_parts, hand)))
+    return hit, missed, own_hit, own_missed, bare, bare_parts
 
 
 def measure(name: str, motion) -> dict:
@@ -102,7 +124,7 @@ def measure(name: str, motion) -> dict:
     with_parts = extract(motion, partial=True)
     t_partial = time.perf_counter() - t0
     found = partial_ops.partial_times(with_parts)
-    hit, missed = coverage(motion, name, whole, found)
+    hit, missed, own_hit, own_missed, bare, bare_parts = coverage(motion, name, whole, with_parts)
     worst = max((most_in_window(t) for t in found.values()), default=0)
     ratio, knots = partial_knots.equal_knots_ratio(whole, with_parts)
     return {
@@ -112,6 +134,10 @@ def measure(name: str, motion) -> dict:
         "per_s": {p: len(t) / whole.duration for p, t in found.items()},
         "hit": hit,
         "missed": missed,
+        "own_hit": own_hit,
+        "own_missed": own_missed,
+        "bare": bare,
+        "bare_parts": bare_parts,
         "worst": worst,
         "ratio": ratio,
         "knots": knots,
@@ -155,6 +181,14 @@ def main(argv: list[str]) -> None:
     print(
         f"spliced clips: arm feature peaks the whole-body poses miss, with an arm pose within {NEAR:g} s: "
         f"{hit}/{missed} ({100.0 * hit / max(missed, 1):.0f} %)"
+    )
+    own_hit = sum(r["own_hit"] for r in spliced_rows)
+    own_missed = sum(r["own_missed"] for r in spliced_rows)
+    print(
+        f"spliced clips: arm feature peaks the --partial whole-body poses miss, with a knot of an arm pose within "
+        f"{NEAR:g} s: {own_hit}/{own_missed} ({100.0 * own_hit / max(own_missed, 1):.0f} %); no arm knot within "
+        f"{NEAR:g} s: {sum(r['bare'] for r in spliced_rows)} without --partial, "
+        f"{sum(r['bare_parts'] for r in spliced_rows)} with"
     )
     print(f"most partial poses of one part in {WINDOW:g} s: {max(r['worst'] for r in rows)}")
     report(spliced_rows, "spliced clips")

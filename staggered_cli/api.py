@@ -255,9 +255,10 @@ def extract(
         clip's tempo as ``filter_width`` is.  ``doc.parameters`` records
         the values used.
     partial : bool
-        After the whole-body poses, add each body part's own partial poses
-        (``doc.pose_part``) where its features fall between them and earn
-        their knots (BVH only).
+        Partition the poses among the body parts (``doc.pose_part``): a
+        whole-body pose there for one part only becomes that part's partial
+        pose, and the knots freed (no more) go to the parts' own partial
+        poses at their features, where they earn them (BVH only).
 
     Returns
     -------

@@ -1,20 +1,16 @@
 """The spline layer with partial poses, at the same total number of knots (issue 37).
 
 The whole-body extract of a clip is compared with its ``--partial``
-extract: the latter is the former with partial poses added (the whole-body
-poses are the same), so at equal knots it is the whole-body document culled
-by error by as many poses as the partial poses' knots make up, with the
-partial poses added (:func:`staggered_cli.ops.cull.add_poses`), against the
-whole-body document.
+extract: the latter keeps the former's whole-body poses but makes some of
+them partial poses and adds partial poses, within the former's knots; at
+equal knots it is compared with the whole-body document culled by error to
+its own number of knots (:func:`equal_knots_ratio`).
 """
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
-from staggered_cli.errors import StaggeredWarning
 from staggered_cli.model.sampling import local_pose
 from staggered_cli.ops import cull
 from staggered_cli.skeleton import forward_kinematics
@@ -41,33 +37,32 @@ def partial_poses(doc) -> tuple[list[float], list[str]]:
 
 
 def equal_knots_ratio(whole, with_parts) -> tuple[float, tuple[int, int]]:
-    """The spline layer's error with the partial poses of ``with_parts`` over
-    that of the whole-body document ``whole`` alone, at the same total number
-    of knots, and the two knot counts (without, with at the cull that
-    reaches them).
+    """The spline layer's error of ``with_parts`` (the ``--partial``
+    extract) at its own total number of knots over that of the whole-body
+    extract ``whole`` culled (by error, ``cull --keep``) to the same number
+    of knots, and the two knot counts (``whole``'s, ``with_parts``').
 
-    ``whole`` is culled (by error) by the fewest poses that bring the knots
-    of its poses left plus the partial poses to at most its own; the error
-    is read at exactly its knot count, linearly between that cull and the
-    one with a pose more (a pose is 20 to 50 knots, a partial pose 3 to 8).
+    ``whole``'s error at exactly ``with_parts``' knot count is read linearly
+    between the cull at or below it and the one with a pose more (a pose is
+    20 to 50 knots); at ``whole``'s own count it is ``whole``'s error.  The
+    ``--partial`` extract spends at most the knots of the whole-body one
+    (its whole-body poses are some of ``whole``'s, a few made partial, and
+    its partial poses); one with more has no fair comparison (ValueError).
     """
     base = spline_error(whole)
-    n_whole = knot_count(whole)
-    times, parts = partial_poses(with_parts)
-    if not times:
-        return 1.0, (n_whole, n_whole)
+    n_whole, n_parts = knot_count(whole), knot_count(with_parts)
+    if n_parts > n_whole:
+        raise ValueError(f"the partial document has {n_parts} knots, more than the whole-body one's {n_whole}")
+    err = spline_error(with_parts)
     K = whole.n_poses
     above = (n_whole, base)
-    for keep in range(K, 1, -1):
-        d = whole if keep == K else cull.keep_poses(whole, cull.choose(whole, keep=str(keep)))
-        left = [i for i, t in enumerate(times) if np.min(np.abs(d.pose_t - t)) > 0.5 * d.frame_time]
-        with warnings.catch_warnings():  # a culled pose's refinement in the way collapses: so be it
-            warnings.simplefilter("ignore", StaggeredWarning)
-            d = cull.add_poses(d, [times[i] for i in left], [parts[i] for i in left])
-        n, err = knot_count(d), spline_error(d)
-        if n <= n_whole:
+    for keep in range(K - 1, 1, -1):
+        if above[0] == n_parts:
+            break
+        d = cull.keep_poses(whole, cull.choose(whole, keep=str(keep)))
+        n, e = knot_count(d), spline_error(d)
+        if n <= n_parts:
             n1, e1 = above
-            e = err if n1 <= n else err + (e1 - err) * (n_whole - n) / (n1 - n)
-            return e / base, (n_whole, n)
-        above = (n, err)
-    return float("inf"), (n_whole, n_whole)
+            return err / (e + (e1 - e) * (n_parts - n) / (n1 - n)), (n_whole, n_parts)
+        above = (n, e)
+    return err / above[1], (n_whole, n_parts)

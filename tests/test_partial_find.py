@@ -15,6 +15,7 @@ import staggered_cli as st
 from staggered_cli.cli.main import cli
 from staggered_cli.errors import UsageError
 from staggered_cli.io.bvh import write_bvh
+from staggered_cli.ops import cull
 from staggered_cli.ops import partial as partial_ops
 from staggered_cli.ops.extract import extract
 from staggered_cli.signals import partial as partial_signals
@@ -65,21 +66,39 @@ def test_parts_partition_the_limbs_and_the_spine_keeps_its_own_joints():
     assert m.skeleton.names.index("Hips") not in every  # the root changes at whole-body poses only
 
 
+def _knots(doc) -> int:
+    return int(sum(len(t.knots.t) for t in doc.tracks))
+
+
 @pytest.mark.parametrize("name", list(SPLICES))
-def test_partial_poses_leave_the_whole_body_poses_and_the_motion_as_they_were(name):
+def test_partial_poses_keep_the_whole_body_poses_some_made_partial_within_their_knots(name):
     whole, parts = _docs(name)
-    is_whole = np.array([p is None for p in parts.pose_part])
-    np.testing.assert_array_equal(parts.pose_t[is_whole], whole.pose_t)
     assert not whole.has_partial_poses
+    # every pose of the plain extract stays, at its time: whole, or made a partial pose
+    assert set(whole.pose_t.tolist()) <= set(parts.pose_t.tolist())
+    is_whole = np.array([p is None for p in parts.pose_part])
+    made = ~is_whole & np.isin(parts.pose_t, whole.pose_t)
+    assert made.any(), "a whole-body pose there for the arms' dance only becomes an arm's pose"
+    # a pose made partial keeps its part's knots (refinements too) and loses the others'
+    for k in np.flatnonzero(made):
+        kw = int(np.flatnonzero(whole.pose_t == parts.pose_t[k])[0])
+        mask, col = parts.part_mask(parts.pose_part[k]), 0
+        for tw, tp in zip(whole.tracks, parts.tracks, strict=True):
+            for i in range(tw.n_vars):
+                a = tw.knots.t[tw.knots.of(i)][tw.knots.pose[tw.knots.of(i)] == kw]
+                b = tp.knots.t[tp.knots.of(i)][tp.knots.pose[tp.knots.of(i)] == k]
+                np.testing.assert_array_equal(b, a if mask[col + i] else np.zeros(0))
+            col += tw.n_vars
+    assert _knots(parts) <= _knots(whole)  # --partial spends no more knots than the whole-body poses
     found = partial_ops.partial_times(parts)
-    assert found, "the dance's arms on another body give partial poses"
     m = _clip(name)
     for part, times in found.items():
         assert part in partial_signals.part_roots(m)
         assert np.all((times > 0) & (times < m.n_frames * m.frame_time))
-        # at most one per part in any 0.3 s, and farther than min_spacing from every whole-body pose
+        # at most one per part in any 0.3 s, and min_spacing (0.1 s, 12 frames) or more
+        # from every whole-body pose (a pose made partial is as far as the plain poses are apart)
         assert np.all(np.diff(times) >= WINDOW - 1e-9), (part, times)
-        assert np.min(np.abs(times[:, None] - whole.pose_t[None, :])) > 0.1 - 1e-9
+        assert np.min(np.abs(times[:, None] - parts.pose_t[is_whole][None, :])) >= 12 * m.frame_time - 1e-9
     np.testing.assert_allclose(st.bake(parts).channels, m.channels, atol=1e-9)
     # cull --keep N is exact with partial poses too, and keeps the motion
     for n in (parts.n_poses - 2, whole.n_poses, 5):
@@ -88,15 +107,48 @@ def test_partial_poses_leave_the_whole_body_poses_and_the_motion_as_they_were(na
         np.testing.assert_allclose(st.bake(d).channels, m.channels, atol=1e-9)
 
 
-def _arm_knots(doc, hand: str) -> np.ndarray:
-    """The knots of an arm's joints from its root down to the hand (no fingers)."""
+def test_a_pose_made_partial_keeps_the_motion_and_its_part_to_the_bit():
+    whole, _ = _docs("walk+dance_a")
+    k = 5
+    d = cull.demote_pose(whole, k, "@right-arm")
+    assert d.pose_part[k] == "@right-arm" and d.n_poses == whole.n_poses
+    assert not any(p for i, p in enumerate(d.pose_part) if i != k)
+    np.testing.assert_allclose(st.bake(d).channels, _clip("walk+dance_a").channels, atol=1e-9)
+    mask, col = d.part_mask("@right-arm"), 0
+    for tw, td in zip(whole.tracks, d.tracks, strict=True):
+        for i in range(tw.n_vars):
+            at = tw.knots.pose[tw.knots.of(i)] == k
+            want = tw.knots.t[tw.knots.of(i)] if mask[col + i] else tw.knots.t[tw.knots.of(i)][~at]
+            np.testing.assert_array_equal(td.knots.t[td.knots.of(i)], want)
+        col += tw.n_vars
+    assert _knots(d) == _knots(whole) - int((~mask).sum()) - sum(
+        int(np.sum((t.knots.pose == k) & t.knots.editing & ~mask[c : c + t.n_vars][t.knots.var]))
+        for t, c in zip(whole.tracks, np.cumsum([0] + [t.n_vars for t in whole.tracks[:-1]]), strict=True)
+    )
+    for bad in (0, whole.n_poses - 1):
+        with pytest.raises(UsageError, match="whole-body"):
+            cull.demote_pose(whole, bad, "@left-arm")
+    with pytest.raises(UsageError, match="whole-body"):
+        cull.demote_pose(d, k, "@left-arm")
+
+
+def _arm_knots(doc, hand: str, whole: bool | None = None) -> np.ndarray:
+    """The knots of an arm's joints from its root down to the hand (no
+    fingers): of every pose, or (``whole``) of the whole-body poses only, or
+    (``whole=False``) of the partial poses only."""
     sk = doc.source.skeleton
     chain = [sk.names.index(hand)]
     roots = set(partial_signals.part_roots(doc.source).values())
     while chain[-1] not in roots:
         chain.append(int(sk.parents[chain[-1]]))
     rot = doc.tracks[-1]
-    return np.concatenate([rot.knots.t[rot.knots.of(rot.index(sk.names[j]))] for j in chain])
+    is_whole = np.array([p is None for p in doc.pose_part])
+    out = []
+    for j in chain:
+        sl = rot.knots.of(rot.index(sk.names[j]))
+        keep = np.ones(sl.stop - sl.start, bool) if whole is None else is_whole[rot.knots.pose[sl]] == whole
+        out.append(rot.knots.t[sl][keep])
+    return np.concatenate(out)
 
 
 def test_the_fit_driven_round_takes_the_best_real_gains_apart_and_each_earns_its_knots():
@@ -116,7 +168,7 @@ def test_the_fit_driven_round_takes_the_best_real_gains_apart_and_each_earns_its
 
 
 def test_the_arms_get_poses_at_their_own_features_the_whole_body_poses_miss():
-    hit = missed = 0
+    hit = missed = own_hit = own_missed = bare = 0
     for name in SPLICES:
         whole, parts = _docs(name)
         m = _clip(name)
@@ -128,10 +180,20 @@ def test_the_arms_get_poses_at_their_own_features_the_whole_body_poses_miss():
             miss = part_events.missed(t, _arm_knots(whole, hand))
             missed += len(miss)
             hit += int(part_events.hit(miss, found.get(part, np.zeros(0))).sum())
+            # the peaks the whole-body poses of --partial miss (some plain ones are arm poses there)
+            own = part_events.missed(t, _arm_knots(parts, hand, whole=True))
+            own_missed += len(own)
+            own_hit += len(own) - len(part_events.missed(own, _arm_knots(parts, hand, whole=False)))
+            bare += len(part_events.missed(t, _arm_knots(parts, hand)))
     # measured 4 of 5 before the limbs' extreme knots; since then the whole-body
-    # poses' refined arm knots reach all but 1 (issue 37: at least 80 %)
+    # poses' refined arm knots reach all but 1 (issue 37: at least 80 %): 1 of 1
     assert missed >= 1
     assert hit >= 0.8 * missed, (hit, missed)
+    # measured: the whole-body poses of --partial miss 4 (3 of them at arm poses'
+    # times, the 4th at a refined knot of one), and no peak is without an arm knot
+    assert own_missed >= 1
+    assert own_hit >= 0.8 * own_missed, (own_hit, own_missed)
+    assert bare == 0
 
 
 def test_at_equal_knots_the_spline_layer_is_better_with_partial_poses():
@@ -141,24 +203,24 @@ def test_at_equal_knots_the_spline_layer_is_better_with_partial_poses():
         ratio, (n_whole, n_parts) = partial_knots.equal_knots_ratio(whole, parts)
         assert n_parts <= n_whole
         ratios.append(ratio)
-    # measured 0.991, 0.979, 0.964: geometric mean 0.978 with the fit-driven round
-    # (0.984 without it, 0.970 before the limbs' extreme knots took most of the
-    # arms' error; issue 37 asks 0.9: not met)
-    assert np.exp(np.mean(np.log(ratios))) <= 0.982, ratios
-    assert max(ratios) <= 1.0, ratios
+    # measured 0.944, 0.952, 0.786: geometric mean 0.891, with whole-body poses
+    # there for the arms made arm poses (0.978 when partial poses were only added
+    # to the whole-body poses; issue 37 asks 0.9)
+    assert np.exp(np.mean(np.log(ratios))) <= 0.9, ratios
+    assert max(ratios) <= 0.96, ratios
 
 
 @pytest.mark.parametrize("name", ["cmu_02_01_walk.bvh", "bandai1_walk_normal_001.bvh", "cmu_05_06_modern_dance.bvh"])
 def test_at_equal_knots_a_dev_file_is_no_worse_with_partial_poses(name):
     m = dev_motion(name)
     ratio, _ = partial_knots.equal_knots_ratio(extract(m), extract(m, partial=True))
-    assert ratio <= 1.0, ratio  # measured 0.973, 0.994, 0.972
+    assert ratio <= {"cmu_05_06_modern_dance.bvh": 0.95}.get(name, 1.0), ratio  # measured 1.0, 1.0, 0.936
 
 
 def test_a_plain_walk_gains_few_partial_poses():
     doc = extract(dev_motion("cmu_02_01_walk.bvh"), partial=True)
     found = partial_ops.partial_times(doc)
-    assert sum(len(t) for t in found.values()) <= 3, found  # measured 2 leg poses
+    assert sum(len(t) for t in found.values()) <= 3, found  # measured none (2 leg poses before the budget)
     assert not any(p.endswith("-arm") for p in found), found
 
 
@@ -193,10 +255,42 @@ def test_every_dev_bvh_round_trips_to_its_bytes_with_partial_poses_and_culls_exa
 
     doc = extract(dev_motion(name), source_name=name, partial=True)
     whole = dev_document(name)
-    is_whole = np.array([p is None for p in doc.pose_part])
-    np.testing.assert_array_equal(doc.pose_t[is_whole], whole.pose_t)
+    # the poses of the plain extract stay (some made partial), within its knots,
+    # and the spline layer is no worse at equal knots (measured: the bow 0.864,
+    # CMU 05_06 0.936, 115_06 0.912, 01_01 0.983, 131_02 0.967, the others 1.0)
+    assert set(whole.pose_t.tolist()) <= set(doc.pose_t.tolist())
+    assert _knots(doc) <= _knots(whole)
+    assert partial_knots.equal_knots_ratio(whole, doc)[0] <= 1.0
     assert bvh_bytes(st.bake(doc)) == mocap(name).read_bytes()
     n = max(2, doc.n_poses // 3)
     culled = st.cull(doc, keep=str(n))
     assert culled.n_poses == n
     assert bvh_bytes(st.bake(culled)) == mocap(name).read_bytes()
+
+
+def test_an_edit_of_a_pose_made_partial_changes_only_its_part_between_its_neighbouring_knots():
+    from staggered_cli.ops.bake import bake
+
+    from .test_partial import channel_columns, same_variables
+
+    whole, parts = _docs("walk+dance_a")
+    made = [k for k, p in enumerate(parts.pose_part) if p is not None and parts.pose_t[k] in set(whole.pose_t)]
+    assert made
+    k = made[0]  # measured: pose 6 (1.133 s), made a @right-arm pose, 5 of its arm variables refined
+    part = parts.pose_part[k]
+    mask = parts.part_mask(part)
+    r = parts.refinements()
+    assert np.count_nonzero(r[k, mask]) >= 3, "a pose made partial keeps its part's refinements"
+    cols = channel_columns(parts, mask)
+    before = bake(parts).channels
+    joint = "LeftArm" if part == "@left-arm" else "RightArm"
+    for kw in ({"rotate": {joint: (10.0, 0.0, 15.0)}}, {"exaggerate": 1.6}):
+        edited = st.edit_pose(parts, k, **kw)
+        assert same_variables(parts, edited, ~mask), kw
+        after = bake(edited).channels
+        assert np.array_equal(before[:, ~cols], after[:, ~cols]), kw
+        changed = np.flatnonzero(np.any(before != after, axis=1)) * parts.frame_time
+        # between the part's knots of the poses around it (a neighbour's extreme may lie off its time)
+        lo = min(parts.pose_t[k - 1] + min(0.0, r[k - 1, mask].min()), parts.pose_t[k] + r[k, mask].min())
+        hi = max(parts.pose_t[k + 1] + max(0.0, r[k + 1, mask].max()), parts.pose_t[k] + r[k, mask].max())
+        assert changed.size and changed[0] > lo - 1e-9 and changed[-1] < hi + 1e-9, kw

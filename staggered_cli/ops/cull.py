@@ -241,6 +241,31 @@ def keep_poses(doc: Document, mask: np.ndarray, motion: tuple[np.ndarray, ...] |
     )
 
 
+def demote_pose(doc: Document, k: int, part: str, motion: tuple[np.ndarray, ...] | None = None) -> Document:
+    """The document with the whole-body pose ``k`` made a partial pose of
+    ``part``: its knots (extreme and editing, refinements kept) stay in the
+    part's variables and go from every other variable, whose splines then
+    pass through its time; motion unchanged (SPEC invariant 2).
+    ``motion``: the document's :func:`base_motion`, when the caller has it.
+    The first and last pose stay whole (UsageError)."""
+    from ..model.document import canonical_part
+
+    k = check_pose_index(doc, k)
+    if k in (0, doc.n_poses - 1) or doc.pose_part[k] is not None:
+        raise UsageError(f"pose {k} is not an inner whole-body pose: it cannot become a partial pose")
+    part = canonical_part(part)
+    mine = doc.part_mask(part)
+    tracks, col = [], 0
+    for tr, dense in zip(doc.tracks, base_motion(doc) if motion is None else motion, strict=True):
+        own = mine[col : col + tr.n_vars]
+        col += tr.n_vars
+        keep = (tr.knot_pose != k) | own[tr.knots.var]
+        tracks.append(restructure(tr, tr.knots.subset(keep), frame_t=doc.frame_times, dense=dense))
+    parts = list(doc.pose_part)
+    parts[k] = part
+    return reprioritized(with_poses(doc, doc.pose_t, doc.priority, tuple(parts), tracks=tuple(tracks)))
+
+
 def add_pose(doc: Document, time: float, part: str | None = None) -> Document:
     """A new unrefined pose at ``time`` seconds (see :func:`add_poses`)."""
     return add_poses(doc, [time], part)

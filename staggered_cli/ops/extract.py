@@ -788,8 +788,10 @@ def extract(
         pose needs; 0 keeps every local maximum of ``P``.
     min_spacing : fewest seconds between two poses; default
         :data:`DEFAULT_MIN_SPACING` times the clip's :func:`tempo_scale`.
-    partial : after the whole-body poses, each body part's own partial
-        poses where they earn their knots (:mod:`staggered_cli.signals.partial`,
+    partial : after the whole-body poses, partition them among the body
+        parts: a whole-body pose there for one part only becomes that part's
+        partial pose, and the knots freed (no more) go to the parts' own
+        partial poses where they earn them (:mod:`staggered_cli.signals.partial`,
         :func:`staggered_cli.ops.partial.confirmed`); BVH only (``UsageError``).
 
     Returns
@@ -908,9 +910,9 @@ def extract(
     on_contact, fixed = contact_refinements(motion, ev.names, pose_f, events, window)
     refine_f = prune_refinements(proxy, pose_f, np.where(fixed, on_contact, peaks), fixed, gain, groups)
     refine = refine_f * float(motion.frame_time)
-    candidates, fits = [], []
+    candidates, fits, demotions = [], [], []
     if partial:
-        candidates, fits = partial_poses.find_partial(
+        candidates, fits, demotions = partial_poses.find_partial(
             proxy,
             ev.p,
             ev.weights,
@@ -925,6 +927,7 @@ def extract(
             spacing=spacing,
             stride=stride,
             fit=True,
+            demote=True,
         )
     del proxy  # the placement's float32 copy of the variables: the fit below does not need it
 
@@ -956,7 +959,7 @@ def extract(
         parameters=parameters,
     )
     if partial:  # the candidates that earn their knots in the real spline layer
-        doc = partial_ops.confirmed(doc, candidates, fits, gap=partial_poses.PART_SPACING)
+        doc = partial_ops.confirmed(doc, candidates, fits, demotions, gap=partial_poses.PART_SPACING, budget=True)
     if isinstance(motion, BvhMotion):  # the fit's local rotations: writing the document does not need them
         motion.release_local()
     return doc

@@ -1,9 +1,12 @@
 """Partial poses found by extract (issue 37): which candidates earn their knots.
 
 :mod:`staggered_cli.signals.partial` proposes partial poses from each body
-part's own evidence and the placement proxy; :func:`confirmed` adds those
-that make the real spline layer better, judged in world space, to the
-document (:func:`staggered_cli.ops.cull.add_poses` with the part).
+part's own evidence and the placement proxy, and the whole-body poses that
+may become partial poses; :func:`confirmed` makes partial those whose other
+knots cost the real spline layer little (:func:`demoted`,
+:func:`staggered_cli.ops.cull.demote_pose`) and adds the partial poses that
+make it better, judged in world space
+(:func:`staggered_cli.ops.cull.add_poses` with the part).
 """
 
 from __future__ import annotations
@@ -25,6 +28,11 @@ from . import cull
 #: number of knots the trade is no loss (0.7 kept poses worth less than the
 #: pose they stand in for: spliced clips 0.984 at equal knots, now 0.978).
 WORLD_VALUE = 1.0
+#: A whole-body pose becomes a partial pose of one part (:func:`demoted`)
+#: where the knots it loses cost the spline layer at most this share of what
+#: the knots of the whole-body pose a cull would take first hold in place,
+#: per knot.
+DEMOTE_VALUE = 1.0
 
 
 def partial_times(doc: Document) -> dict[str, np.ndarray]:
@@ -90,7 +98,13 @@ def _trial(doc: Document, part: str, frame: int, mask: np.ndarray, now: np.ndarr
 
 
 def confirmed(
-    doc: Document, candidates: list[tuple[str, int]], fits: list[tuple[str, int]] | None = None, *, gap: float = 0.0
+    doc: Document,
+    candidates: list[tuple[str, int]],
+    fits: list[tuple[str, int]] | None = None,
+    demotions: list[tuple[str, int, list[tuple[str, int]]]] | None = None,
+    *,
+    gap: float = 0.0,
+    budget: bool = False,
 ) -> Document:
     """``doc`` with the partial poses of ``candidates`` ((part, frame), best
     first, from :func:`staggered_cli.signals.partial.find_partial`) that earn
@@ -107,54 +121,176 @@ def confirmed(
     Then the candidates ``fits`` (anywhere the part moves), the one whose
     real gain per knot is largest first, each by the same rule and more
     than ``gap`` seconds from the part's other partial poses.
+
+    With ``budget`` (``extract --partial``) the result has no more knots
+    than ``doc``: first the ``demotions`` ((part, frame, alternatives) of
+    whole-body poses from :func:`staggered_cli.signals.partial.find_partial`):
+    a whole-body pose that is there for one part only becomes a partial pose
+    of that part where the knots it loses elsewhere cost the spline layer at
+    most :data:`DEMOTE_VALUE` times that same value per knot, the cheapest
+    per knot first (:func:`demoted`).  Then the knots freed so (and only
+    those) go to ``candidates``, then to the alternatives of the poses
+    demoted ((part, frame): the other parts' own partial poses near them)
+    and ``fits``, by the rules above.
     """
-    if (not candidates and not fits) or doc.n_poses < 3:
+    if (not candidates and not fits and not demotions) or doc.n_poses < 3:
         return doc
     every = np.arange(doc.n_frames)
-    fewer = cull.keep_poses(doc, cull.choose(doc, keep=str(doc.n_poses - 1)))
+    n0 = _knot_count(doc)
+    motion = cull.base_motion(doc)  # the motion every change below keeps
+    fewer = cull.keep_poses(doc, cull.choose(doc, keep=str(doc.n_poses - 1), motion=motion), motion)
     now = _errors(doc, every)  # (T, J), kept up to date as poses are added
-    value = max(_error(fewer, every) - float(np.sum(now)), 0.0) / max(_knot_count(doc) - _knot_count(fewer), 1)
+    value = max(_error(fewer, every) - float(np.sum(now)), 0.0) / max(n0 - _knot_count(fewer), 1)
     if value <= 0.0:
         return doc
-    masks = {part: doc.part_mask(part) for part, _ in list(candidates) + list(fits or [])}
+    adds = list(candidates) + list(fits or [])
+    masks = {part: doc.part_mask(part) for part, _ in adds}
+    if not budget:
+        doc = _added(doc, candidates, masks, now, value, gap=gap)
+        return _best_first(doc, fits, masks, now, WORLD_VALUE * value, gap) if fits else doc
+    # the demotions first: what they free is what the partial poses may spend
+    demote = [(part, float(f) * doc.frame_time) for part, f, _ in (demotions or [])]
+    doc = demoted(doc, demote, now, motion, least=DEMOTE_VALUE * value, gap=gap)
+    made = {(p, round(float(t) / doc.frame_time)) for t, p in zip(doc.pose_t, doc.pose_part, strict=True) if p}
+    alts = [alt for part, f, alts in (demotions or []) for alt in alts if (part, int(f)) in made]
+    masks.update({part: doc.part_mask(part) for part, _ in alts if part not in masks})
+    doc = _added(doc, candidates, masks, now, value, n0, gap)
+    return _best_first(doc, alts + list(fits or []), masks, now, WORLD_VALUE * value, gap, n0)
+
+
+def _added(
+    doc: Document, candidates, masks, now: np.ndarray, value: float, limit: int | None = None, gap: float = 0.0
+) -> Document:
+    """``doc`` with the ``candidates`` that earn :data:`WORLD_VALUE` times
+    ``value`` per knot, each in turn, more than ``gap`` seconds from its
+    part's other partial poses (while the knots stay within ``limit``)."""
     for part, frame in candidates:
+        if np.any(np.abs(partial_times(doc).get(part, np.zeros(0)) - float(frame) * doc.frame_time) <= gap):
+            continue
+        if limit is not None and _knot_count(doc) + int(masks[part].sum()) > limit:
+            continue  # a partial pose has a knot in every variable of its part at least
         got = _trial(doc, part, frame, masks[part], now)
         if got is None:
             continue
         trial, frames, after, gain, added = got
-        if gain >= WORLD_VALUE * value * added:
+        if gain >= WORLD_VALUE * value * added and (limit is None or _knot_count(trial) <= limit):
             doc = trial
             now[frames] = after
-    if fits:
-        doc = _best_first(doc, fits, masks, now, WORLD_VALUE * value, gap)
     return doc
 
 
-def _best_first(doc: Document, fits, masks, now: np.ndarray, least: float, gap: float) -> Document:
+def _best_first(
+    doc: Document, fits, masks, now: np.ndarray, least: float, gap: float, limit: int | None = None
+) -> Document:
     """Lazily greedy: the candidate of ``fits`` with the largest real gain
-    per knot first, each worth ``least`` per knot and more than ``gap``
-    seconds from its part's other partial poses.  A gain measured before the
+    per knot first, each worth ``least`` per knot, more than ``gap``
+    seconds from its part's other partial poses and within ``limit`` knots
+    in all.  A gain measured before the
     last pose was added is measured again when it comes up (a pose's gain
     only shrinks as others are added, nearly always)."""
     heap = []
     version = 0
+    room = np.inf if limit is None else limit - _knot_count(doc)
     for n, (part, frame) in enumerate(fits):
+        if masks[part].sum() > room:
+            continue  # a partial pose has a knot in every variable of its part at least
         got = _trial(doc, part, frame, masks[part], now)
-        if got is not None and got[3] >= least * got[4]:
+        if got is not None and got[3] >= least * got[4] and got[4] <= room:
             heapq.heappush(heap, (-got[3] / got[4], n, version, got))
     while heap:
         _, n, seen, got = heapq.heappop(heap)
         part, frame = fits[n]
         others = partial_times(doc).get(part, np.zeros(0))
-        if np.any(np.abs(others - float(frame) * doc.frame_time) <= gap):
+        if np.any(np.abs(others - float(frame) * doc.frame_time) <= gap) or masks[part].sum() > room:
             continue
         if seen != version:  # measured on an older document
             got = _trial(doc, part, frame, masks[part], now)
-            if got is not None and got[3] >= least * got[4]:
+            if got is not None and got[3] >= least * got[4] and got[4] <= room:
                 heapq.heappush(heap, (-got[3] / got[4], n, version, got))
             continue
-        trial, frames, after, _, _ = got
+        if got[4] > room:
+            continue
+        trial, frames, after, _, added = got
         doc = trial
         now[frames] = after
+        room -= added
         version += 1
+    return doc
+
+
+def _pose_at(doc: Document, t: float) -> int | None:
+    k = int(np.argmin(np.abs(doc.pose_t - t)))
+    return k if abs(float(doc.pose_t[k]) - t) < 0.5 * doc.frame_time else None
+
+
+def _demotion(doc: Document, k: int, part: str, now: np.ndarray, motion):
+    """``doc`` with the whole-body pose ``k`` a partial pose of ``part``, the
+    frames that changes (from the knot before the knots it loses to the knot
+    after), their errors (:func:`_errors`), the cost against ``now`` and the
+    knots freed; None where it loses none."""
+    mask = doc.part_mask(part)
+    lo, hi, col = np.inf, -np.inf, 0
+    for tr in doc.tracks:
+        own = mask[col : col + tr.n_vars]
+        col += tr.n_vars
+        idx = np.flatnonzero((tr.knot_pose == k) & ~own[tr.knots.var])  # never a variable's first or last knot
+        if len(idx):
+            lo = min(lo, float(np.min(tr.knots.t[idx - 1])))
+            hi = max(hi, float(np.max(tr.knots.t[idx + 1])))
+    if not np.isfinite(lo):
+        return None
+    first = max(int(np.floor(lo / doc.frame_time)), 0)
+    frames = np.arange(first, min(int(np.ceil(hi / doc.frame_time)) + 1, doc.n_frames))
+    trial = cull.demote_pose(doc, k, part, motion)
+    after = _errors(trial, frames)
+    cost = float(np.sum(after)) - float(np.sum(now[frames]))
+    return trial, frames, after, cost, _knot_count(doc) - _knot_count(trial)
+
+
+def demoted(
+    doc: Document, options: list[tuple[str, float]], now: np.ndarray, motion, *, least: float, gap: float = 0.0
+) -> Document:
+    """Lazily greedy: of ``options`` ((part, time)), the whole-body pose at
+    ``time`` whose knots outside ``part`` cost the spline layer least per
+    knot first becomes a partial pose of ``part``
+    (:func:`staggered_cli.ops.cull.demote_pose`), each costing at most
+    ``least`` per knot and more than ``gap`` seconds from the part's other
+    partial poses.  ``now`` (T, J): the errors of ``doc`` (:func:`_errors`),
+    kept up to date; ``motion``: its
+    :func:`staggered_cli.ops.cull.base_motion`.  A cost measured before a
+    change whose frames it overlaps is measured again when it comes up."""
+    heap: list = []
+    changed: list[tuple[int, int]] = []  # the frames each change touched
+
+    def usable(part: str, t: float) -> int | None:
+        k = _pose_at(doc, t)
+        if k is None or k in (0, doc.n_poses - 1) or doc.pose_part[k] is not None:
+            return None
+        if np.any(np.abs(partial_times(doc).get(part, np.zeros(0)) - t) <= gap):
+            return None
+        return k
+
+    def measure(n: int) -> None:
+        part, t = options[n]
+        k = usable(part, t)
+        got = None if k is None else _demotion(doc, k, part, now, motion)
+        if got is None or got[4] <= 0 or got[3] > least * got[4]:
+            return
+        _, frames, after, cost, knots = got
+        heapq.heappush(heap, (cost / knots, n, len(changed), int(frames[0]), int(frames[-1]), after))
+
+    for n in range(len(options)):
+        measure(n)
+    while heap:
+        _, n, seen, lo, hi, after = heapq.heappop(heap)
+        part, t = options[n]
+        k = usable(part, t)
+        if k is None:
+            continue
+        if any(a <= hi + 1 and lo - 1 <= b for a, b in changed[seen:]):
+            measure(n)  # measured on an older document where it now differs
+            continue
+        doc = cull.demote_pose(doc, k, part, motion)
+        now[lo : hi + 1] = after
+        changed.append((lo, hi))
     return doc

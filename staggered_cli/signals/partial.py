@@ -38,6 +38,18 @@ whole-body poses.  After the whole-body poses are placed, each body part
    proposes more; :func:`~staggered_cli.ops.partial.confirmed` adds those
    that earn their knots, the largest real gain per knot first.
 
+6. **Whole-body poses there for one part** (:func:`demotions`, the
+   partitioning of the degrees of freedom the paper leaves open): where a
+   part has a feature site at a whole-body pose, what the pose's knots
+   outside the part hold in place per knot in the proxy
+   (:func:`demotion_costs`) ranks it; the cheapest are proposed to become
+   partial poses of that part, each with the other parts' best frames near
+   it (:func:`replacements`), and
+   :func:`staggered_cli.ops.partial.confirmed` makes partial those whose
+   lost knots cost the real spline layer less than a cull's per knot, then
+   spends the knots freed (``extract --partial`` never has more knots than
+   plain extract) on steps 3 to 5 and those frames.
+
 Parts whose features the whole-body poses already cover get none: a plain
 walk gains few or none.  C3D clips have no body parts.
 """
@@ -67,6 +79,17 @@ PART_GAIN = 0.75
 #: whole-body pose's knot holds in place (:func:`pose_value`): loose, the
 #: real spline layer decides (:func:`staggered_cli.ops.partial.confirmed`).
 PART_VALUE = 0.25
+#: A whole-body pose is proposed as a partial pose of (at most) this many
+#: parts, those whose knots elsewhere cost the least per knot ...
+DEMOTE_PARTS = 2
+#: ... where that cost is at most this many times what a whole pose's knots
+#: hold in place per knot (:data:`VALUE_PERCENTILE`): the real spline layer
+#: decides (:func:`staggered_cli.ops.partial.demoted`).
+DEMOTE_SLACK = 1.5
+#: Of those, the cheapest :data:`DEMOTE_SHARE` of the inner poses' number
+#: (at least :data:`DEMOTE_LEAST`) are tried: each is a refit of the document.
+DEMOTE_SHARE = 0.125
+DEMOTE_LEAST = 16
 
 
 def part_roots(motion: BvhMotion) -> dict[str, int]:
@@ -229,6 +252,7 @@ def find_partial(
     spacing: int,
     stride: int,
     fit: bool = False,
+    demote: bool = False,
 ):
     """The candidate partial poses (see the module doc), (part, frame), the
     most misfit removed first: :func:`staggered_cli.ops.partial.confirmed`
@@ -243,6 +267,9 @@ def find_partial(
     spacing : ``min_spacing`` in frames; stride: the placement grid, frames.
     fit : also return the fit-driven candidates (step 5 of the module doc):
         then ``(features, fits)``, each (part, frame), the most misfit removed first.
+    demote : also return the whole-body poses that may become partial poses
+        (step 6 of the module doc) as a last item, (part, frame), the
+        cheapest per knot in the proxy first.
     """
     T = p.shape[0]
     found: list[tuple[float, str, int]] = []
@@ -253,6 +280,7 @@ def find_partial(
     gap = int(np.floor(PART_SPACING * rate)) + 1
     value = pose_value(proxy, pose_f, refine_f)
     where = {int(c): k for k, c in enumerate(proxy.cols)}
+    feature_at: dict[str, np.ndarray] = {}
     for part, cols in columns.items():
         sel = np.array([where[int(c)] for c in cols if int(c) in where], dtype=int)
         if len(sel) == 0 or T < 3:
@@ -273,6 +301,7 @@ def find_partial(
         for m in local_maxima(P):
             if gate[m]:
                 sites[max(m - reach, 1) : min(m + reach, T - 2) + 1] = True
+        feature_at[part] = sites
         grid = np.arange(0, T, stride)
         grid = grid[sites[grid] & ~inside[grid]]
         n = len(sel)
@@ -283,7 +312,129 @@ def find_partial(
             far = np.min(np.abs(grid[:, None] - pose_f[None, :]), axis=1) > spacing
             grid = grid[gate[grid] & ~inside[grid] & far & (grid >= 1) & (grid <= T - 2)]
             _greedy(sub, knots, grid, taken, spacing, gap, value * n, covered=False, found=fits, part=part)
-    ordered = [(part, f) for _, part, f in sorted(found, key=lambda g: -g[0])]
+    out = [[(part, f) for _, part, f in sorted(found, key=lambda g: -g[0])]]
     if fit:
-        return ordered, [(part, f) for _, part, f in sorted(fits, key=lambda g: -g[0])]
-    return ordered
+        out.append([(part, f) for _, part, f in sorted(fits, key=lambda g: -g[0])])
+    if demote:
+        out.append(demotions(proxy, pose_f, refine_f, columns, feature_at, stride, spacing))
+    return out[0] if len(out) == 1 else tuple(out)
+
+
+def demotions(
+    proxy: placement.Proxy,
+    pose_f: np.ndarray,
+    refine_f: np.ndarray,
+    columns: dict[str, np.ndarray],
+    feature_at: dict[str, np.ndarray],
+    stride: int = 1,
+    spacing: int = 0,
+) -> list[tuple[str, int, list[tuple[str, int]]]]:
+    """The whole-body poses that may become partial poses (step 6 of the
+    module doc), (part, frame), the cheapest per knot in the proxy first:
+    per pose, the :data:`DEMOTE_PARTS` parts whose knots elsewhere cost the
+    least per knot (:func:`demotion_costs`), where the part has a feature
+    (``feature_at[part]`` (T,) bool) at the pose, and the cost per knot is at
+    most :data:`DEMOTE_SLACK` times the :data:`VALUE_PERCENTILE` of what a
+    whole pose's knots hold in place per knot.  Each comes with the other
+    parts' best frames for a partial pose of their own near it once it is
+    demoted (:func:`replacements`)."""
+    parts, cost, whole = demotion_costs(proxy, pose_f, refine_f, columns)
+    K = len(pose_f)
+    if K < 3 or not parts:
+        return []
+    least = DEMOTE_SLACK * float(np.percentile(whole[1:-1], VALUE_PERCENTILE))
+    out = []
+    for k in range(1, K - 1):
+        ok = np.array([p in feature_at and bool(feature_at[p][pose_f[k]]) for p in parts])
+        c = np.where(ok, cost[k], np.inf)
+        for j in np.argsort(c, kind="stable")[:DEMOTE_PARTS]:
+            if c[j] <= least:
+                out.append((float(c[j]), parts[j], int(pose_f[k])))
+    most = max(DEMOTE_LEAST, int(np.ceil(DEMOTE_SHARE * (K - 2))))
+    chosen = [(p, f) for _, p, f in sorted(out, key=lambda g: g[0])[:most]]
+    return [(p, f, replacements(proxy, pose_f, refine_f, columns, p, f, stride, spacing)) for p, f in chosen]
+
+
+def replacements(
+    proxy: placement.Proxy,
+    pose_f: np.ndarray,
+    refine_f: np.ndarray,
+    columns: dict[str, np.ndarray],
+    part: str,
+    frame: int,
+    stride: int,
+    spacing: int = 0,
+) -> list[tuple[str, int]]:
+    """Once the whole-body pose at ``frame`` is a partial pose of ``part``,
+    each other part's best frame for a partial pose of its own between its
+    knots around it: on the placement grid (``stride``), not the pose's own
+    frame and farther than ``spacing`` frames from the other poses, the one
+    where one more knot of every variable of the part cuts its proxy misfit
+    most, (other part, frame) where it cuts any."""
+    k = int(np.searchsorted(pose_f, frame))
+    K = len(pose_f)
+    if not 0 < k < K - 1:
+        return []
+    where = {int(c): i for i, c in enumerate(proxy.cols)}
+    f = pose_f.astype(float)
+    out = []
+    for other, cols in columns.items():
+        sel = np.array([where[int(c)] for c in cols if int(c) in where], dtype=int)
+        if other == part or len(sel) == 0:
+            continue
+        sub = placement.Proxy(proxy.x[:, sel], proxy.w[sel], proxy.cols[sel])
+        r = refine_f[:, sub.cols].astype(float)
+        prev = np.maximum(f[k - 1], f[k - 1] + r[k - 1])  # (n,) each variable's knot before and after
+        nxt = np.minimum(f[k + 1], f[k + 1] + r[k + 1])
+        grid = np.arange(int(np.ceil(prev.min())) + 1, int(np.floor(nxt.max())), 1)
+        far = np.min(np.abs(grid[:, None] - np.delete(pose_f, k)[None, :]), axis=1) > spacing
+        grid = grid[(grid % stride == 0) & (grid != frame) & far]
+        if len(grid) == 0:
+            continue
+        at = np.clip(grid[:, None].astype(float), prev[None, :], nxt[None, :])  # (G, n)
+        a = np.broadcast_to(prev, at.shape)
+        b = np.broadcast_to(nxt, at.shape)
+        old = placement.span_costs(sub, np.stack([a[:1], b[:1]], axis=-1)).sum()
+        new = placement.span_costs(sub, np.stack([a, at, b], axis=-1)).sum(axis=1)
+        best = int(np.argmin(new))
+        if new[best] < old:
+            out.append((other, int(grid[best])))
+    return out
+
+
+def demotion_costs(
+    proxy: placement.Proxy, pose_f: np.ndarray, refine_f: np.ndarray, columns: dict[str, np.ndarray]
+) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """What making each whole-body pose a partial pose of each part costs in
+    the placement proxy, per knot it frees: the misfit its knots outside the
+    part hold in place (the segments around them joined), over how many they
+    are.  Returns the parts, (K, n_parts) and (K,) the same for all the
+    pose's knots (a cull of it), infinite for the first and last pose (they
+    stay whole)."""
+    K = len(pose_f)
+    parts = list(columns)
+    out = np.full((K, len(parts)), np.inf)
+    whole = np.full(K, np.inf)
+    V = refine_f.shape[1]
+    if K < 3 or V == 0:
+        return parts, out, whole
+    f = pose_f.astype(float)
+    ks = np.arange(1, K - 1)
+    knots = 1.0 + (refine_f[ks] != 0)  # (n, V) the knots each variable has at each pose
+    delta = np.zeros((len(ks), V))
+    if len(proxy.cols):
+        r = refine_f[:, proxy.cols].astype(float)
+        ext = f[:, None] + r
+        prev = np.maximum(f[ks - 1, None], ext[ks - 1])
+        nxt = np.minimum(f[ks + 1, None], ext[ks + 1])
+        here = np.broadcast_to(f[ks, None], prev.shape)
+        lo, hi = np.minimum(here, ext[ks]), np.maximum(here, ext[ks])
+        with_k = placement.span_costs(proxy, np.stack([prev, lo, hi, nxt], axis=-1))
+        without = placement.span_costs(proxy, np.stack([prev, nxt], axis=-1))
+        delta[:, proxy.cols] = without - with_k
+    for j, part in enumerate(parts):
+        other = np.ones(V, dtype=bool)
+        other[columns[part]] = False
+        out[ks, j] = delta[:, other].sum(axis=1) / np.maximum(knots[:, other].sum(axis=1), 1.0)
+    whole[ks] = delta.sum(axis=1) / knots.sum(axis=1)
+    return parts, out, whole
