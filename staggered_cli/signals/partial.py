@@ -93,8 +93,8 @@ DEMOTE_SLACK = 1.5
 DEMOTE_SHARE = 0.125
 #: The other parts' partial poses near a demoted pose (:func:`replacements`)
 #: are tried with it where the demotion alone costs at most this many times
-#: what it may cost (they win back up to two thirds of it on the spliced
-#: clips, rarely more).
+#: what it may cost (on the spliced clips and the bow the moves within the
+#: bar cost up to 2.8 times that alone).
 DEMOTE_REACH = 3.0
 DEMOTE_LEAST = 16
 
