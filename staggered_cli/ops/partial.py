@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import StaggeredWarning, UsageError
 from ..model.document import Document
 from ..model.sampling import local_pose
+from ..signals.partial import DEMOTE_REACH
 from ..skeleton import forward_kinematics
 from . import cull
 
@@ -149,8 +150,8 @@ def confirmed(
         doc = _added(doc, candidates, masks, now, value, gap=gap)
         return _best_first(doc, fits, masks, now, WORLD_VALUE * value, gap) if fits else doc
     # the demotions first: what they free is what the partial poses may spend
-    demote = [(part, float(f) * doc.frame_time) for part, f, _ in (demotions or [])]
-    doc = demoted(doc, demote, now, motion, least=DEMOTE_VALUE * value, gap=gap)
+    demote = [(part, float(f) * doc.frame_time, alts) for part, f, alts in (demotions or [])]
+    doc = demoted(doc, demote, now, motion, least=DEMOTE_VALUE * value, gap=gap, value=WORLD_VALUE * value)
     made = {(p, round(float(t) / doc.frame_time)) for t, p in zip(doc.pose_t, doc.pose_part, strict=True) if p}
     alts = [alt for part, f, alts in (demotions or []) for alt in alts if (part, int(f)) in made]
     masks.update({part: doc.part_mask(part) for part, _ in alts if part not in masks})
@@ -247,20 +248,65 @@ def _demotion(doc: Document, k: int, part: str, now: np.ndarray, motion):
     return trial, frames, after, cost, _knot_count(doc) - _knot_count(trial)
 
 
+def _with_replacements(doc: Document, got, alts, now: np.ndarray, masks, least: float, gap: float):
+    """A demotion ``got`` (:func:`_demotion`) together with the other parts'
+    partial poses ``alts`` ((part, frame), near the pose) that each win back
+    at least ``least`` per knot they add, in turn: the document, the frames
+    changed (from the first to the last), their errors and the net cost and
+    knots freed."""
+    trial, frames, after, _, _ = got
+    lo, hi = int(frames[0]), int(frames[-1])
+    mine = now.copy()
+    mine[frames] = after
+    kept: list[tuple[str, int]] = []
+    for part, frame in alts:
+        t = float(frame) * trial.frame_time
+        if np.any(np.abs(partial_times(trial).get(part, np.zeros(0)) - t) <= gap):
+            continue
+        if part not in masks:
+            masks[part] = trial.part_mask(part)
+        more = _trial(trial, part, frame, masks[part], mine)
+        if more is None or more[3] < least * more[4]:
+            continue
+        trial, fr, af = more[0], more[1], more[2]
+        mine[fr] = af
+        kept.append((part, frame))
+        lo, hi = min(lo, int(fr[0])), max(hi, int(fr[-1]))
+    frames = np.arange(lo, hi + 1)
+    after = mine[frames]
+    cost = float(np.sum(after)) - float(np.sum(now[frames]))
+    return trial, frames, after, cost, _knot_count(doc) - _knot_count(trial), kept
+
+
 def demoted(
-    doc: Document, options: list[tuple[str, float]], now: np.ndarray, motion, *, least: float, gap: float = 0.0
+    doc: Document,
+    options: list,
+    now: np.ndarray,
+    motion,
+    *,
+    least: float,
+    gap: float = 0.0,
+    value: float | None = None,
 ) -> Document:
-    """Lazily greedy: of ``options`` ((part, time)), the whole-body pose at
-    ``time`` whose knots outside ``part`` cost the spline layer least per
-    knot first becomes a partial pose of ``part``
-    (:func:`staggered_cli.ops.cull.demote_pose`), each costing at most
-    ``least`` per knot and more than ``gap`` seconds from the part's other
-    partial poses.  ``now`` (T, J): the errors of ``doc`` (:func:`_errors`),
-    kept up to date; ``motion``: its
-    :func:`staggered_cli.ops.cull.base_motion`.  A cost measured before a
-    change whose frames it overlaps is measured again when it comes up."""
+    """Lazily greedy: of ``options`` ((part, time) or (part, time,
+    alternatives)), the whole-body pose at ``time`` whose knots outside
+    ``part`` cost the spline layer least per knot first becomes a partial
+    pose of ``part`` (:func:`staggered_cli.ops.cull.demote_pose`), each
+    costing at most ``least`` per knot freed and more than ``gap`` seconds
+    from the part's other partial poses.  The ``alternatives`` ((other
+    part, frame): the other parts' own best frames near the pose) are part
+    of the move: each that wins back ``value`` per knot it adds is added
+    with the demotion, and the move's cost and knots are net of them (a
+    pose there for both arms at two nearby times becomes a partial pose of
+    one arm and one of the other, and the body's knots go).  ``now``
+    (T, J): the errors of ``doc`` (:func:`_errors`), kept up to date;
+    ``motion``: its :func:`staggered_cli.ops.cull.base_motion`.  A cost
+    measured before a change whose frames it overlaps is measured again
+    when it comes up."""
     heap: list = []
     changed: list[tuple[int, int]] = []  # the frames each change touched
+    masks: dict = {}
+    options = [o if len(o) == 3 else (o[0], o[1], []) for o in options]
 
     def usable(part: str, t: float) -> int | None:
         k = _pose_at(doc, t)
@@ -271,19 +317,23 @@ def demoted(
         return k
 
     def measure(n: int) -> None:
-        part, t = options[n]
+        part, t, alts = options[n]
         k = usable(part, t)
         got = None if k is None else _demotion(doc, k, part, now, motion)
+        if got is not None and got[4] > 0:
+            # the other parts' own poses win back a share of the cost at best
+            near = alts if value is not None and got[3] <= DEMOTE_REACH * least * got[4] else []
+            got = _with_replacements(doc, got, near, now, masks, value or 0.0, gap)
         if got is None or got[4] <= 0 or got[3] > least * got[4]:
             return
-        _, frames, after, cost, knots = got
-        heapq.heappush(heap, (cost / knots, n, len(changed), int(frames[0]), int(frames[-1]), after))
+        _, frames, after, cost, knots, kept = got
+        heapq.heappush(heap, (cost / knots, n, len(changed), int(frames[0]), int(frames[-1]), after, kept))
 
     for n in range(len(options)):
         measure(n)
     while heap:
-        _, n, seen, lo, hi, after = heapq.heappop(heap)
-        part, t = options[n]
+        _, n, seen, lo, hi, after, kept = heapq.heappop(heap)
+        part, t, _ = options[n]
         k = usable(part, t)
         if k is None:
             continue
@@ -291,6 +341,8 @@ def demoted(
             measure(n)  # measured on an older document where it now differs
             continue
         doc = cull.demote_pose(doc, k, part, motion)
+        if kept:  # the other parts' partial poses that came with it
+            doc = cull.add_poses(doc, [float(f) * doc.frame_time for _, f in kept], [q for q, _ in kept])
         now[lo : hi + 1] = after
         changed.append((lo, hi))
     return doc

@@ -39,16 +39,18 @@ whole-body poses.  After the whole-body poses are placed, each body part
    that earn their knots, the largest real gain per knot first.
 
 6. **Whole-body poses there for one part** (:func:`demotions`, the
-   partitioning of the degrees of freedom the paper leaves open): where a
-   part has a feature site at a whole-body pose, what the pose's knots
-   outside the part hold in place per knot in the proxy
-   (:func:`demotion_costs`) ranks it; the cheapest are proposed to become
-   partial poses of that part, each with the other parts' best frames near
-   it (:func:`replacements`), and
-   :func:`staggered_cli.ops.partial.confirmed` makes partial those whose
-   lost knots cost the real spline layer less than a cull's per knot, then
+   partitioning of the degrees of freedom the paper leaves open): a
+   whole-body pose may become a partial pose of one part, alone (where the
+   part has a feature site at the pose and the pose's knots outside the
+   part hold little in place per knot in the proxy,
+   :func:`demotion_costs`) or together with partial poses of the other
+   parts at their own best frames near it (:func:`replacements`: a pose
+   between the two arms' extremes keeps one arm, the other arm gets a pose
+   at its own extreme, the body's knots go);
+   :func:`staggered_cli.ops.partial.confirmed` makes those moves whose net
+   cost per knot freed is below a cull's in the real spline layer, then
    spends the knots freed (``extract --partial`` never has more knots than
-   plain extract) on steps 3 to 5 and those frames.
+   plain extract) on steps 3 to 5.
 
 Parts whose features the whole-body poses already cover get none: a plain
 walk gains few or none.  C3D clips have no body parts.
@@ -89,6 +91,11 @@ DEMOTE_SLACK = 1.5
 #: Of those, the cheapest :data:`DEMOTE_SHARE` of the inner poses' number
 #: (at least :data:`DEMOTE_LEAST`) are tried: each is a refit of the document.
 DEMOTE_SHARE = 0.125
+#: The other parts' partial poses near a demoted pose (:func:`replacements`)
+#: are tried with it where the demotion alone costs at most this many times
+#: what it may cost (on the spliced clips and the bow the moves within the
+#: bar cost up to 2.8 times that alone).
+DEMOTE_REACH = 3.0
 DEMOTE_LEAST = 16
 
 
@@ -330,29 +337,81 @@ def demotions(
     spacing: int = 0,
 ) -> list[tuple[str, int, list[tuple[str, int]]]]:
     """The whole-body poses that may become partial poses (step 6 of the
-    module doc), (part, frame), the cheapest per knot in the proxy first:
-    per pose, the :data:`DEMOTE_PARTS` parts whose knots elsewhere cost the
-    least per knot (:func:`demotion_costs`), where the part has a feature
-    (``feature_at[part]`` (T,) bool) at the pose, and the cost per knot is at
-    most :data:`DEMOTE_SLACK` times the :data:`VALUE_PERCENTILE` of what a
-    whole pose's knots hold in place per knot.  Each comes with the other
-    parts' best frames for a partial pose of their own near it once it is
-    demoted (:func:`replacements`)."""
+    module doc), (part, frame, alternatives), the cheapest per knot in the
+    proxy first.  Two lists, each at most the cheapest :data:`DEMOTE_SHARE`
+    of the inner poses (at least :data:`DEMOTE_LEAST`), each with at most
+    :data:`DEMOTE_PARTS` parts per pose, at most :data:`DEMOTE_SLACK` times
+    the :data:`VALUE_PERCENTILE` of what a whole pose's knots hold in place
+    per knot (the *unit*):
+
+    * **alone**: the parts whose knots elsewhere cost the least per knot
+      (:func:`demotion_costs`), where the part has a feature
+      (``feature_at[part]`` (T,) bool) at the pose;
+    * **with the other parts' own poses**: each other part's best frame
+      near the pose (:func:`replacements`) where one more knot of its
+      variables there removes a unit per knot, the move's cost being the
+      knots lost less what those poses win back, over the knots it frees
+      net of theirs.  A pose between two arms' extremes a few frames apart
+      keeps one arm and the other gets a pose at its own extreme, and the
+      rest of the body's knots go: the real spline layer measures such a
+      move at a fifth to a half of a cull's cost per knot on the spliced
+      clips where the demotion alone costs more than a cull.
+
+    Each comes with those other parts' frames (the alternatives), tried
+    with it by :func:`staggered_cli.ops.partial.demoted`.  A pose whose
+    cheapest demotion alone costs more than :data:`DEMOTE_REACH` times the
+    bound is left out."""
     parts, cost, whole = demotion_costs(proxy, pose_f, refine_f, columns)
     K = len(pose_f)
     if K < 3 or not parts:
         return []
-    least = DEMOTE_SLACK * float(np.percentile(whole[1:-1], VALUE_PERCENTILE))
-    out = []
+    unit = float(np.percentile(whole[1:-1], VALUE_PERCENTILE))
+    least = DEMOTE_SLACK * unit
+    where = {int(c): i for i, c in enumerate(proxy.cols)}
+    size = {p: sum(int(c) in where for c in columns[p]) for p in parts}
+    freed = _freed(refine_f, columns, parts)  # (K, n_parts) the knots each demotion frees
+    out, alone = [], []
     for k in range(1, K - 1):
-        ok = np.array([p in feature_at and bool(feature_at[p][pose_f[k]]) for p in parts])
-        c = np.where(ok, cost[k], np.inf)
-        for j in np.argsort(c, kind="stable")[:DEMOTE_PARTS]:
-            if c[j] <= least:
-                out.append((float(c[j]), parts[j], int(pose_f[k])))
+        if np.min(cost[k]) > DEMOTE_REACH * least:
+            continue  # the other parts' own poses near it would not win back enough
+        # the other parts' own partial poses near the pose, where one holds in
+        # place what a whole pose's knots do per knot in the proxy
+        near = replacements(proxy, pose_f, refine_f, columns, None, int(pose_f[k]), stride, spacing)
+        near = [(q, f, g) for q, f, g in near if g >= unit * size[q]]
+        mine, own = [], []
+        for j, p in enumerate(parts):
+            if not np.isfinite(cost[k, j]):
+                continue
+            alts = [(q, f, g) for q, f, g in near if q != p]
+            if p in feature_at and bool(feature_at[p][pose_f[k]]) and cost[k, j] <= least:
+                own.append((float(cost[k, j]), p, int(pose_f[k]), [(q, f) for q, f, _ in alts]))
+            net = freed[k, j] - sum(size[q] for q, _, _ in alts)
+            if net <= 0 or not alts:
+                continue
+            c = (cost[k, j] * freed[k, j] - sum(g for _, _, g in alts)) / net
+            if c <= least:
+                mine.append((float(c), p, int(pose_f[k]), [(q, f) for q, f, _ in alts]))
+        out += sorted(mine, key=lambda g: g[0])[:DEMOTE_PARTS]
+        alone += sorted(own, key=lambda g: g[0])[:DEMOTE_PARTS]
     most = max(DEMOTE_LEAST, int(np.ceil(DEMOTE_SHARE * (K - 2))))
-    chosen = [(p, f) for _, p, f in sorted(out, key=lambda g: g[0])[:most]]
-    return [(p, f, replacements(proxy, pose_f, refine_f, columns, p, f, stride, spacing)) for p, f in chosen]
+    chosen = sorted(out, key=lambda g: g[0])[:most] + sorted(alone, key=lambda g: g[0])[:most]
+    seen, res = set(), []
+    for _, p, f, alts in chosen:
+        if (p, f) not in seen:
+            seen.add((p, f))
+            res.append((p, f, alts))
+    return res
+
+
+def _freed(refine_f: np.ndarray, columns: dict[str, np.ndarray], parts: list[str]) -> np.ndarray:
+    """(K, n_parts): the knots a whole-body pose loses as a partial pose of each part."""
+    knots = 1.0 + (refine_f != 0)  # (K, V)
+    out = np.zeros((refine_f.shape[0], len(parts)))
+    for j, p in enumerate(parts):
+        other = np.ones(refine_f.shape[1], dtype=bool)
+        other[columns[p]] = False
+        out[:, j] = knots[:, other].sum(axis=1)
+    return out
 
 
 def replacements(
@@ -360,17 +419,18 @@ def replacements(
     pose_f: np.ndarray,
     refine_f: np.ndarray,
     columns: dict[str, np.ndarray],
-    part: str,
+    part: str | None,
     frame: int,
     stride: int,
     spacing: int = 0,
-) -> list[tuple[str, int]]:
-    """Once the whole-body pose at ``frame`` is a partial pose of ``part``,
-    each other part's best frame for a partial pose of its own between its
-    knots around it: on the placement grid (``stride``), not the pose's own
-    frame and farther than ``spacing`` frames from the other poses, the one
-    where one more knot of every variable of the part cuts its proxy misfit
-    most, (other part, frame) where it cuts any."""
+) -> list[tuple[str, int, float]]:
+    """Once the whole-body pose at ``frame`` is a partial pose of ``part``
+    (None: of any part), each other part's best frame for a partial pose of
+    its own between its knots around it: on the placement grid
+    (``stride``), not the pose's own frame and farther than ``spacing``
+    frames from the other poses, the one where one more knot of every
+    variable of the part cuts its proxy misfit most, (other part, frame,
+    the proxy misfit it removes) where it cuts any."""
     k = int(np.searchsorted(pose_f, frame))
     K = len(pose_f)
     if not 0 < k < K - 1:
@@ -378,6 +438,7 @@ def replacements(
     where = {int(c): i for i, c in enumerate(proxy.cols)}
     f = pose_f.astype(float)
     out = []
+    others = np.delete(pose_f, k)
     for other, cols in columns.items():
         sel = np.array([where[int(c)] for c in cols if int(c) in where], dtype=int)
         if other == part or len(sel) == 0:
@@ -387,7 +448,7 @@ def replacements(
         prev = np.maximum(f[k - 1], f[k - 1] + r[k - 1])  # (n,) each variable's knot before and after
         nxt = np.minimum(f[k + 1], f[k + 1] + r[k + 1])
         grid = np.arange(int(np.ceil(prev.min())) + 1, int(np.floor(nxt.max())), 1)
-        far = np.min(np.abs(grid[:, None] - np.delete(pose_f, k)[None, :]), axis=1) > spacing
+        far = np.min(np.abs(grid[:, None] - others[None, :]), axis=1) > spacing
         grid = grid[(grid % stride == 0) & (grid != frame) & far]
         if len(grid) == 0:
             continue
@@ -398,7 +459,7 @@ def replacements(
         new = placement.span_costs(sub, np.stack([a, at, b], axis=-1)).sum(axis=1)
         best = int(np.argmin(new))
         if new[best] < old:
-            out.append((other, int(grid[best])))
+            out.append((other, int(grid[best]), float(old - new[best])))
     return out
 
 
