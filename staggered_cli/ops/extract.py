@@ -24,7 +24,11 @@
    feature (a peak of the combined evidence, or a contact cluster), chosen
    so that the spline layer alone fits the motion best, measured by the
    proxy of :mod:`staggered_cli.signals.placement`.  A pose that covers contact
-   changes costs less, so contacts keep shaping the poses.
+   changes costs less, so contacts keep shaping the poses; so does one on a
+   limb's swing (:data:`SWING_COVER` of the height or more along the
+   heading) that the first placement left with no pose within the filter
+   width (:func:`uncovered_swings`: a dance's slow arm swings, between
+   poses the fit had spent where the motion is fast), placed again.
 6. Refinements: the contact changes of a pose's cluster put the planted
    leg's knots on its contact frame (:func:`contact_refinements`); other
    variables take the local maximum of ``p_i`` nearest ``t_k`` within
@@ -289,6 +293,7 @@ def optimal_poses(
     count: int,
     stride: int,
     reach: float,
+    costs: dict | None = None,
 ) -> np.ndarray:
     """About ``count`` pose frames whose spline layer fits best.
 
@@ -302,6 +307,9 @@ def optimal_poses(
     count : the number of poses wanted.
     stride : frames between the nodes of the grid poses are placed on.
     reach : the longest segment, in average segments.
+    costs : a dict that keeps the segment costs of each stretch between two
+        forced frames by its nodes, for a placement again with other rewards
+        (or nodes near a few frames more: the stretches without them keep theirs).
 
     Between each two forced frames, a shortest path over a regular grid of
     nodes: an edge is a segment, its length the proxy cost of the segment
@@ -325,7 +333,12 @@ def optimal_poses(
             pieces.append((nodes, None, None))
             continue
         Wp = min(W, G - 1)
-        seg = placement.window_costs(proxy, nodes, Wp)
+        key = (Wp, nodes.tobytes())
+        seg = None if costs is None else costs.get(key)
+        if seg is None:
+            seg = placement.window_costs(proxy, nodes, Wp)
+            if costs is not None:
+                costs[key] = seg
         i = np.arange(G)[:, None]
         j = i + np.arange(1, Wp + 1)[None, :]
         jc = np.minimum(j, G - 1)
@@ -392,6 +405,43 @@ def optimal_poses(
             hi = mid
     best_ps = min(found.values(), key=lambda v: (abs(v[0] - count), -v[0]))[1]
     return np.unique(np.concatenate(best_ps))
+
+
+#: A limb's swing along the body's heading (:func:`trails.heading_offsets`:
+#: the hand forward and back, the foot's step) of at least this share of the
+#: figure height is an event an animator keys; a walking hand swings by
+#: 10-20 % of the height each way.
+SWING_COVER = 0.05
+
+
+def uncovered_swings(
+    heading: tuple[np.ndarray, np.ndarray] | None,
+    ev: trails.LocalEvidence,
+    smoothing: float,
+    pose_f: np.ndarray,
+    reach: int,
+) -> np.ndarray:
+    """Sorted frames of the limbs' swing extremes of at least
+    :data:`SWING_COVER` of the figure height that have no pose within
+    ``2 reach`` frames (the pose probability's filter width)."""
+    if heading is None or len(pose_f) == 0:
+        return np.zeros(0, dtype=int)
+    _, offsets = heading
+    swing = trails.coordinate_extremes(offsets[:, :, None], ev.figure_height, ev.rate, ev.breaks, smoothing)
+    big = np.flatnonzero((swing >= SWING_COVER).any(axis=1))
+    if len(big) == 0:
+        return big
+    j = np.clip(np.searchsorted(pose_f, big), 1, max(len(pose_f) - 1, 1))
+    near = np.minimum(np.abs(big - pose_f[j - 1]), np.abs(pose_f[np.minimum(j, len(pose_f) - 1)] - big))
+    return big[near > 2 * reach]
+
+
+def near_frames(frames: np.ndarray, reach: int, n_frames: int) -> np.ndarray:
+    """(T,) how many of ``frames`` are within ``reach`` frames of each frame."""
+    covers = np.zeros(n_frames + 1)
+    np.add.at(covers, np.clip(np.asarray(frames, dtype=int) - reach, 0, n_frames), 1.0)
+    np.add.at(covers, np.clip(np.asarray(frames, dtype=int) + reach + 1, 0, n_frames), -1.0)
+    return np.cumsum(covers)[:n_frames]
 
 
 def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> list[tuple[str, int]]:
@@ -879,12 +929,17 @@ def extract(
     allowed = np.zeros(T, dtype=bool)
     allowed[feature_sites(ev.p @ ev.weights, reach)] = True
     # a pose is cheaper by CONTACT_REWARD for each contact change it covers
-    covers = np.zeros(T + 1)
-    np.add.at(covers, np.clip(boundaries - reach, 0, T), 1.0)
-    np.add.at(covers, np.clip(boundaries + reach + 1, 0, T), -1.0)
-    reward = np.minimum(np.cumsum(covers)[:T] * CONTACT_REWARD, 1.0)
+    reward = np.minimum(near_frames(boundaries, reach, T) * CONTACT_REWARD, 1.0)
     allowed |= reward > 0
-    pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH)
+    costs: dict = {}
+    pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH, costs)
+    lone = uncovered_swings(heading, ev, smoothing, pose_f, reach)
+    if len(lone):  # and for each limb's swing no pose was near, as for a contact change
+        near = near_frames(lone, reach, T)
+        allowed |= near > 0
+        reward = np.minimum(reward + near * CONTACT_REWARD, 1.0)
+        pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH, costs)
+    del costs
     pose_t = pose_f * float(motion.frame_time)
 
     priority = probability.pose_priority(P, pose_f, pose_t)
