@@ -474,7 +474,6 @@ def edit_pose(
     """
     from .model.document import check_pose_index
     from .ops import edit_pose as ops
-    from .ops.layers import check_ease
     from .ops.layers import ease as ease_op
 
     doc = _document(doc)
@@ -482,10 +481,7 @@ def edit_pose(
     tra = _triples(translate, "translate")
     w = None if exaggerate is None else _number(exaggerate, "exaggerate")
     x = None if ease is None else _number(ease, "ease")
-    if w is not None:
-        ops.check_exaggerate(w)
-    if x is not None:
-        check_ease(x)
+    ops.check_values(w, x)
     names = _names(joints, "joints")
     ops.check_request(
         pose=pose,

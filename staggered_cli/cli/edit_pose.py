@@ -111,12 +111,7 @@ def edit_pose(
     w = finite(exaggerate, "--exaggerate") if exaggerate is not None else None
     x = finite(ease, "--ease") if ease is not None else None
     # the values and options alone are checked before the document is read (a batch checks its steps so)
-    if w is not None:
-        ops.check_exaggerate(w)
-    if x is not None:
-        from ..ops.layers import check_ease
-
-        check_ease(x)
+    ops.check_values(w, x)
     try:
         ops.check_request(
             pose=pose,

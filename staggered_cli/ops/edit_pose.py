@@ -299,6 +299,18 @@ def check_exaggerate(w: float) -> None:
         raise UsageError(f"{arg('exaggerate')} must be a number between -{MAX_EXAGGERATE:g} and {MAX_EXAGGERATE:g}")
 
 
+def check_values(exaggerate: float | None, ease: float | None) -> None:
+    """Refuse an edit's ``exaggerate`` weight or ``ease`` out of range
+    (:func:`check_exaggerate`, :func:`~staggered_cli.ops.layers.check_ease`),
+    each where given, before any document is read."""
+    from .layers import check_ease
+
+    if exaggerate is not None:
+        check_exaggerate(exaggerate)
+    if ease is not None:
+        check_ease(ease)
+
+
 def check_request(
     *,
     pose: int | None,
@@ -319,8 +331,7 @@ def check_request(
     """Refuse an edit whose options do not go together, before any document
     is read (``st.edit_pose`` and the CLI's ``edit-pose`` ask it; a batch
     checks its steps so).  ``rotate``, ``translate`` and ``joints`` say
-    whether any were given; the values are checked apart
-    (:func:`check_exaggerate`, :func:`~staggered_cli.ops.layers.check_ease`)."""
+    whether any were given; the values are checked apart (:func:`check_values`)."""
     if time is not None and shift is not None:
         raise UsageError(f"give {arg('time')} or {arg('shift')}, not both")
     if subtree and not joints:
