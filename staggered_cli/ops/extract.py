@@ -273,15 +273,18 @@ def pose_count(P: np.ndarray, clusters: list[np.ndarray], gate: np.ndarray, forc
     return max(len(_spaced(maxima, P, forced, spacing)), len(_spaced(on_contact, P, forced, spacing)))
 
 
+def near_frames(frames: np.ndarray, reach: int, n_frames: int) -> np.ndarray:
+    """(T,) how many of ``frames`` are within ``reach`` frames of each frame."""
+    covers = np.zeros(n_frames + 1)
+    np.add.at(covers, np.clip(np.asarray(frames, dtype=int) - reach, 0, n_frames), 1.0)
+    np.add.at(covers, np.clip(np.asarray(frames, dtype=int) + reach + 1, 0, n_frames), -1.0)
+    return np.cumsum(covers)[:n_frames]
+
+
 def feature_sites(evidence: np.ndarray, reach: int) -> np.ndarray:
     """Frames where a pose may go: within ``reach`` frames of a local maximum
     of the combined local evidence (before the tent filter merges them)."""
-    T = len(evidence)
-    near = np.zeros(T + 1, dtype=int)
-    m = probability.local_maxima(evidence)
-    np.add.at(near, np.clip(m - reach, 0, T), 1)
-    np.add.at(near, np.clip(m + reach + 1, 0, T), -1)
-    return np.flatnonzero(np.cumsum(near)[:T] > 0)
+    return np.flatnonzero(near_frames(probability.local_maxima(evidence), reach, len(evidence)) > 0)
 
 
 def optimal_poses(
@@ -414,34 +417,31 @@ def optimal_poses(
 SWING_COVER = 0.05
 
 
-def uncovered_swings(
-    heading: tuple[np.ndarray, np.ndarray] | None,
-    ev: trails.LocalEvidence,
-    smoothing: float,
-    pose_f: np.ndarray,
-    reach: int,
-) -> np.ndarray:
-    """Sorted frames of the limbs' swing extremes of at least
-    :data:`SWING_COVER` of the figure height that have no pose within
-    ``2 reach`` frames (the pose probability's filter width)."""
-    if heading is None or len(pose_f) == 0:
+def heading_swings(
+    heading: tuple[np.ndarray, np.ndarray] | None, ev: trails.LocalEvidence, smoothing: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(tops, swings)``: the limbs' top joints and, for each (T, L), the
+    extremes of its end's offset along the heading (:func:`trails.coordinate_extremes`
+    of ``heading``'s :func:`trails.heading_offsets`: the hand's swing forward
+    and back, the foot's step); None without a heading."""
+    if heading is None:
+        return None
+    tops, offsets = heading
+    return tops, trails.coordinate_extremes(offsets[:, :, None], ev.figure_height, ev.rate, ev.breaks, smoothing)
+
+
+def uncovered_swings(swings: tuple[np.ndarray, np.ndarray] | None, pose_f: np.ndarray, reach: int) -> np.ndarray:
+    """Sorted frames of the limbs' swing extremes (:func:`heading_swings`) of
+    at least :data:`SWING_COVER` of the figure height that have no pose
+    within ``2 reach`` frames (the pose probability's filter width)."""
+    if swings is None or len(pose_f) == 0:
         return np.zeros(0, dtype=int)
-    _, offsets = heading
-    swing = trails.coordinate_extremes(offsets[:, :, None], ev.figure_height, ev.rate, ev.breaks, smoothing)
-    big = np.flatnonzero((swing >= SWING_COVER).any(axis=1))
+    big = np.flatnonzero((swings[1] >= SWING_COVER).any(axis=1))
     if len(big) == 0:
         return big
     j = np.clip(np.searchsorted(pose_f, big), 1, max(len(pose_f) - 1, 1))
     near = np.minimum(np.abs(big - pose_f[j - 1]), np.abs(pose_f[np.minimum(j, len(pose_f) - 1)] - big))
     return big[near > 2 * reach]
-
-
-def near_frames(frames: np.ndarray, reach: int, n_frames: int) -> np.ndarray:
-    """(T,) how many of ``frames`` are within ``reach`` frames of each frame."""
-    covers = np.zeros(n_frames + 1)
-    np.add.at(covers, np.clip(np.asarray(frames, dtype=int) - reach, 0, n_frames), 1.0)
-    np.add.at(covers, np.clip(np.asarray(frames, dtype=int) + reach + 1, 0, n_frames), -1.0)
-    return np.cumsum(covers)[:n_frames]
 
 
 def contact_events(constraints, n_frames: int, rate: float, breaks: np.ndarray) -> list[tuple[str, int]]:
@@ -657,18 +657,17 @@ def limbs_own_extremes(
     variables,
     ev: trails.LocalEvidence,
     smoothing: float,
-    heading: tuple[np.ndarray, np.ndarray] | None = None,
+    swings: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The own extremes of a BVH clip's limbs: ``(limb, extremes)``, with
     ``limb`` (n,) the column in ``extremes`` of each of the ``n`` rotation
     variables (the last ``n`` columns; -1 for the torso's) and ``extremes``
     (T, L) :func:`trails.limb_extremes` of each limb's top joint (the hand
     seen from the collar, the foot from the hip); None for a C3D clip.
-    ``heading``: ``(tops, offsets)``, the limbs' top joints and
-    :func:`trails.heading_offsets` of their ends: the extremes of those
-    (the hand's swing forward and back) are :func:`preferred` (issue 34: in
-    a dance the largest turn of the hand near a pose was often a raise,
-    not the swing)."""
+    ``swings``: :func:`heading_swings`, the extremes of the limbs' ends
+    along the heading (the hand's swing forward and back), which are
+    :func:`preferred` (issue 34: in a dance the largest turn of the hand
+    near a pose was often a raise, not the swing)."""
     if not isinstance(motion, BvhMotion):
         return None
     found = [(np.asarray(t, dtype=int), dense) for kind, _, t, dense in variables if kind == ROTATION]
@@ -683,14 +682,12 @@ def limbs_own_extremes(
     extremes = trails.limb_extremes(
         motion.skeleton, targets, dense, ev.figure_height, ev.rate, ev.breaks, smoothing, which=cols
     )
-    if heading is not None:
-        tops_all, offsets = heading
+    if swings is not None:
+        tops_all, swing = swings
         at = {int(t): i for i, t in enumerate(tops_all)}
         have = [c for c, t in enumerate(used) if t in at]
         if have:
-            s = offsets[:, [at[used[c]] for c in have], None]
-            swing = trails.coordinate_extremes(s, ev.figure_height, ev.rate, ev.breaks, smoothing)
-            extremes[:, have] = preferred(swing, extremes[:, have])
+            extremes[:, have] = preferred(swing[:, [at[used[c]] for c in have]], extremes[:, have])
     return limb, extremes
 
 
@@ -921,7 +918,8 @@ def extract(
         gate = tent_filter(ev.speed, 2.0 * refine_window, rate) >= significance
     proxy = placement.proxy_from_dense(variables, weights)
     own = translation_extremes(motion, variables, ev, smoothing, up)
-    limbs = limbs_own_extremes(motion, variables, ev, smoothing, heading)
+    swings = heading_swings(heading, ev, smoothing)
+    limbs = limbs_own_extremes(motion, variables, ev, smoothing, swings)
     del variables
     clusters = contact_clusters(boundaries, reach, T)
     count = pose_count(P, clusters, gate, forced, spacing)
@@ -933,7 +931,7 @@ def extract(
     allowed |= reward > 0
     costs: dict = {}
     pose_f = optimal_poses(proxy, forced, allowed, reward, spacing, count, stride, SEGMENT_REACH, costs)
-    lone = uncovered_swings(heading, ev, smoothing, pose_f, reach)
+    lone = uncovered_swings(swings, pose_f, reach)
     if len(lone):  # and for each limb's swing no pose was near, as for a contact change
         near = near_frames(lone, reach, T)
         allowed |= near > 0
