@@ -285,11 +285,11 @@ def demoted(
     motion,
     *,
     least: float,
+    value: float,
     gap: float = 0.0,
-    value: float | None = None,
 ) -> Document:
-    """Lazily greedy: of ``options`` ((part, time) or (part, time,
-    alternatives)), the whole-body pose at ``time`` whose knots outside
+    """Lazily greedy: of ``options`` ((part, time, alternatives)), the
+    whole-body pose at ``time`` whose knots outside
     ``part`` cost the spline layer least per knot first becomes a partial
     pose of ``part`` (:func:`staggered_cli.ops.cull.demote_pose`), each
     costing at most ``least`` per knot freed and more than ``gap`` seconds
@@ -306,7 +306,6 @@ def demoted(
     heap: list = []
     changed: list[tuple[int, int]] = []  # the frames each change touched
     masks: dict = {}
-    options = [o if len(o) == 3 else (o[0], o[1], []) for o in options]
 
     def usable(part: str, t: float) -> int | None:
         k = _pose_at(doc, t)
@@ -322,8 +321,8 @@ def demoted(
         got = None if k is None else _demotion(doc, k, part, now, motion)
         if got is not None and got[4] > 0:
             # the other parts' own poses win back a share of the cost at best
-            near = alts if value is not None and got[3] <= DEMOTE_REACH * least * got[4] else []
-            got = _with_replacements(doc, got, near, now, masks, value or 0.0, gap)
+            near = alts if got[3] <= DEMOTE_REACH * least * got[4] else []
+            got = _with_replacements(doc, got, near, now, masks, value, gap)
         if got is None or got[4] <= 0 or got[3] > least * got[4]:
             return
         _, frames, after, cost, knots, kept = got
